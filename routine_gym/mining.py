@@ -1,0 +1,470 @@
+"""Routine discovery: from one demonstration's actions to a `RoutineLibrary` (SPEC §2).
+
+`SequiturMiner` is the paper's two-phase method:
+
+1. *Proposal.* Sequitur infers a grammar of the demonstrated actions; every non-start rule,
+   expanded to primitive actions, is a candidate (duplicates merged).
+2. *Selection.* Each candidate ρ is scored `f(ρ) + λ_length·|ρ|`, where `f` counts its
+   occurrences in the raw action sequence (overlapping ones included, none across an episode
+   boundary). Candidates are visited by descending score (ties: longer first, then
+   lexicographic) and accepted unless their Levenshtein distance to an accepted routine is
+   `< α`; primitives count as accepted, so with α = 2 no routine of length 2 survives. The
+   first K accepted form the library.
+
+The ablation proposers of the paper share the interface (`mine(actions) -> RoutineLibrary`),
+use the same K and the routine lengths the full miner finds, and are seeded:
+
+- `RandomRoutines` (RR): actions drawn uniformly from those present in the demo;
+- `EnumerationProposer` (PbE): every action sequence of the chosen lengths, scored and pruned
+  like the full miner's candidates (sequences absent from the demo score only `λ·|ρ|`);
+- `RandomFetch` (RF): random contiguous slices of the demo;
+- `RepeatProposer` (RP): the most frequent actions repeated, FiGAR style.
+
+Example:
+    >>> from routine_gym.mining import SequiturMiner
+    >>> library = SequiturMiner(num_routines=2).mine(
+    ...     [2, 2, 3, 5, 4, 4, 1, 2, 2, 3, 0, 4, 4, 1, 2, 2, 3]
+    ... )
+    >>> library.routines
+    ((2, 2, 3), (4, 4, 1, 2, 2, 3))
+    >>> library.frequencies
+    (3, 2)
+    >>> library.scores
+    (3.3, 2.6)
+"""
+
+from __future__ import annotations
+
+import heapq
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+from rapidfuzz.distance import Levenshtein
+
+from routine_gym.library import Routine, RoutineLibrary
+from routine_gym.sequitur import _as_episodes, induce
+
+__all__ = [
+    "PROPOSERS",
+    "EnumerationProposer",
+    "OccurrenceIndex",
+    "RandomFetch",
+    "RandomRoutines",
+    "RepeatProposer",
+    "RoutineProposer",
+    "SequiturMiner",
+    "make_proposer",
+]
+
+
+class RoutineProposer(Protocol):
+    """Anything that turns demonstrated actions into a `RoutineLibrary`."""
+
+    def mine(
+        self,
+        actions: Any,
+        action_meanings: Sequence[str] | None = None,
+        source: dict[str, Any] | None = None,
+    ) -> RoutineLibrary: ...
+
+
+class OccurrenceIndex:
+    """Finds every (overlapping) occurrence of a routine in a set of episodes.
+
+    Positions are indexed by their first digram, so counting a routine costs time in the
+    number of places its first two actions occur, not in the length of the demonstration.
+    """
+
+    def __init__(self, episodes: Sequence[np.ndarray]) -> None:
+        self.episodes = [np.asarray(e, dtype=np.int64) for e in episodes]
+        lengths = np.array([len(e) for e in self.episodes], dtype=np.int64)
+        self.offsets = np.concatenate([[0], np.cumsum(lengths)])
+        self.seq = (
+            np.concatenate(self.episodes) if self.episodes else np.zeros(0, dtype=np.int64)
+        )
+        self.episode_of = np.repeat(np.arange(len(lengths)), lengths)
+        self.num_actions = int(self.seq.max()) + 1 if self.seq.size else 0
+        # Digram code per position; -1 where the digram would cross an episode boundary.
+        n = self.seq.size
+        codes = np.full(max(n - 1, 0), -1, dtype=np.int64)
+        if n > 1:
+            same = self.episode_of[:-1] == self.episode_of[1:]
+            codes[same] = self.seq[:-1][same] * self.num_actions + self.seq[1:][same]
+        valid = np.flatnonzero(codes >= 0)
+        order = valid[np.argsort(codes[valid], kind="stable")]
+        self._positions = order
+        self._keys, self._starts = np.unique(codes[order], return_index=True)
+        self._ends = np.append(self._starts[1:], order.size)
+
+    def _digram_slice(self, a: int, b: int) -> tuple[int, int]:
+        if not (0 <= a < self.num_actions and 0 <= b < self.num_actions):
+            return 0, 0
+        key = a * self.num_actions + b
+        i = int(np.searchsorted(self._keys, key))
+        if i == self._keys.size or self._keys[i] != key:
+            return 0, 0
+        return int(self._starts[i]), int(self._ends[i])
+
+    def digram_count(self, a: int, b: int) -> int:
+        """Occurrences of the digram `(a, b)`: an upper bound of any routine it starts."""
+        start, end = self._digram_slice(a, b)
+        return end - start
+
+    def positions(self, routine: Sequence[int]) -> np.ndarray:
+        """Start positions (in the concatenated sequence) of every occurrence, sorted."""
+        routine = tuple(int(a) for a in routine)
+        if len(routine) == 1:
+            return np.flatnonzero(self.seq == routine[0])
+        start, end = self._digram_slice(routine[0], routine[1])
+        p = np.sort(self._positions[start:end])
+        last = p + len(routine) - 1
+        keep = last < self.seq.size
+        p, last = p[keep], last[keep]
+        p = p[self.episode_of[last] == self.episode_of[p]]
+        for j in range(2, len(routine)):
+            p = p[self.seq[p + j] == routine[j]]
+        return p
+
+    def count(self, routine: Sequence[int]) -> int:
+        """f(ρ): overlapping occurrences, none across an episode boundary."""
+        return int(self.positions(routine).size)
+
+    def occurrences(self, routine: Sequence[int]) -> tuple[tuple[int, int], ...]:
+        """Every occurrence as `(episode, start within the episode)`."""
+        p = self.positions(routine)
+        ep = self.episode_of[p]
+        return tuple(zip(ep.tolist(), (p - self.offsets[ep]).tolist(), strict=True))
+
+
+def _episodes_of(actions: Any) -> tuple[list[np.ndarray], Sequence[str] | None, dict[str, Any]]:
+    """Episodes, action meanings and a source description from actions or a `Demo`."""
+    meanings = None
+    source: dict[str, Any] = {}
+    if hasattr(actions, "episode_actions"):  # a routine_gym.demo.Demo
+        demo = actions
+        meta = getattr(demo, "meta", {}) or {}
+        meanings = meta.get("action_meanings")
+        source = {
+            k: meta[k] for k in ("env_id", "seeds", "scores", "source", "path") if k in meta
+        }
+        actions = demo.episode_actions()
+    episodes = _as_episodes(actions)
+    total = sum(e.size for e in episodes)
+    if total == 0:
+        raise ValueError("the demonstration is empty: there are no actions to mine routines from")
+    if max(e.size for e in episodes) < 2:
+        raise ValueError(
+            "the demonstration has no episode of two or more actions: a routine needs at least "
+            "two consecutive actions"
+        )
+    return episodes, meanings, source
+
+
+def _check_params(num_routines: int, length_weight: float, alpha: int) -> None:
+    if isinstance(num_routines, bool) or not isinstance(num_routines, int | np.integer):
+        raise TypeError(f"num_routines must be an int, got {type(num_routines).__name__}")
+    if num_routines <= 0:
+        raise ValueError(f"num_routines needs to be ≥ 1, actual value: {num_routines}")
+    if alpha < 1:
+        raise ValueError(f"alpha (the Levenshtein pruning distance) needs to be ≥ 1, got {alpha}")
+    if length_weight < 0:
+        raise ValueError(f"length_weight needs to be ≥ 0, got {length_weight}")
+
+
+def _sort_key(score: float, routine: Routine) -> tuple[float, int, Routine]:
+    # Rounded so that f + λ·len ties exactly whatever the floating-point path.
+    return (-round(score, 9), -len(routine), routine)
+
+
+class _Selector:
+    """Score, prune and pick: the selection phase every proposer shares."""
+
+    def __init__(self, index: OccurrenceIndex, length_weight: float, alpha: int,
+                 prune_primitives: bool) -> None:
+        self.index = index
+        self.length_weight = length_weight
+        self.alpha = alpha
+        self.prune_primitives = prune_primitives
+
+    def score(self, routine: Routine) -> tuple[float, int]:
+        f = self.index.count(routine)
+        return f + self.length_weight * len(routine), f
+
+    def near_primitive(self, routine: Routine) -> bool:
+        # The Levenshtein distance from ρ to a one-action sequence [a] is |ρ| - 1 when a is in
+        # ρ and |ρ| otherwise; its minimum over the primitives (ρ's own actions among them)
+        # is |ρ| - 1.
+        return self.prune_primitives and len(routine) - 1 < self.alpha
+
+    def near_accepted(self, routine: Routine, accepted: Sequence[Routine]) -> bool:
+        return any(
+            Levenshtein.distance(routine, r, score_cutoff=self.alpha) < self.alpha
+            for r in accepted
+        )
+
+    def select(self, candidates: Sequence[Routine], k: int) -> list[tuple[Routine, float, int]]:
+        """The first `k` candidates by descending score that survive pruning.
+
+        Exact frequencies are computed lazily: a candidate waits in the heap under an upper
+        bound (its first digram's count), and is counted only when that bound reaches the top.
+        """
+        heap: list[tuple[tuple[float, int, Routine], bool, int]] = []
+        for routine in candidates:
+            if self.near_primitive(routine):
+                continue
+            bound = self.index.digram_count(routine[0], routine[1]) if len(routine) > 1 else (
+                self.index.count(routine)
+            )
+            heap.append((_sort_key(bound + self.length_weight * len(routine), routine), False, 0))
+        heapq.heapify(heap)
+        accepted: list[tuple[Routine, float, int]] = []
+        while heap and len(accepted) < k:
+            key, exact, f = heapq.heappop(heap)
+            routine = key[2]
+            if not exact:
+                score, f = self.score(routine)
+                heapq.heappush(heap, (_sort_key(score, routine), True, f))
+                continue
+            if self.near_accepted(routine, [r for r, _, _ in accepted]):
+                continue
+            accepted.append((routine, -key[0], f))
+        return accepted
+
+
+def _build_library(
+    accepted: Sequence[tuple[Routine, float, int]],
+    index: OccurrenceIndex,
+    k: int,
+    params: dict[str, Any],
+    meanings: Sequence[str] | None,
+    source: dict[str, Any],
+) -> RoutineLibrary:
+    if len(accepted) < k:
+        warnings.warn(
+            f"only {len(accepted)} routine(s) survive scoring and pruning, fewer than the "
+            f"{k} asked for; returning {len(accepted)}",
+            stacklevel=3,
+        )
+    return RoutineLibrary(
+        routines=tuple(r for r, _, _ in accepted),
+        scores=tuple(s for _, s, _ in accepted),
+        frequencies=tuple(f for _, _, f in accepted),
+        occurrences=tuple(index.occurrences(r) for r, _, _ in accepted),
+        params=params,
+        source=source,
+        action_meanings=None if meanings is None else tuple(meanings),
+    )
+
+
+@dataclass
+class SequiturMiner:
+    """Mine the K best routines of a demonstration with Sequitur (the paper's full model).
+
+    Args:
+        num_routines: K, the size of the library.
+        length_weight: λ_length in the score `f(ρ) + λ_length·|ρ|`.
+        alpha: a candidate closer than `alpha` (Levenshtein) to an accepted routine is pruned.
+        prune_primitives: count the primitive actions as accepted routines, so candidates
+            within `alpha` of a single action are pruned too (the authors' behaviour).
+        max_length: ignore candidates longer than this (None: no limit).
+    """
+
+    num_routines: int = 3
+    length_weight: float = 0.1
+    alpha: int = 2
+    prune_primitives: bool = True
+    max_length: int | None = None
+
+    name = "full"
+
+    def __post_init__(self) -> None:
+        _check_params(self.num_routines, self.length_weight, self.alpha)
+        if self.max_length is not None and self.max_length < 2:
+            raise ValueError(f"max_length needs to be ≥ 2 or None, got {self.max_length}")
+
+    def params(self) -> dict[str, Any]:
+        return {
+            "proposer": self.name,
+            "num_routines": self.num_routines,
+            "length_weight": self.length_weight,
+            "alpha": self.alpha,
+            "prune_primitives": self.prune_primitives,
+            "max_length": self.max_length,
+        }
+
+    def candidates(self, episodes: Sequence[np.ndarray]) -> list[Routine]:
+        """Every non-start rule of the grammar, expanded; duplicates merged, order kept."""
+        seen = dict.fromkeys(induce(episodes).expansions())
+        if self.max_length is not None:
+            return [c for c in seen if len(c) <= self.max_length]
+        return list(seen)
+
+    def mine(
+        self,
+        actions: Any,
+        action_meanings: Sequence[str] | None = None,
+        source: dict[str, Any] | None = None,
+    ) -> RoutineLibrary:
+        """Mine a `RoutineLibrary` from actions, episodes of actions, or a `Demo`."""
+        episodes, meanings, demo_source = _episodes_of(actions)
+        index = OccurrenceIndex(episodes)
+        selector = _Selector(index, self.length_weight, self.alpha, self.prune_primitives)
+        accepted = selector.select(self.candidates(episodes), self.num_routines)
+        return _build_library(
+            accepted,
+            index,
+            self.num_routines,
+            self.params(),
+            action_meanings if action_meanings is not None else meanings,
+            {**demo_source, **(source or {})},
+        )
+
+
+@dataclass
+class _Ablation:
+    """Shared part of the ablation proposers: the full model's lengths, seeded randomness."""
+
+    num_routines: int = 3
+    length_weight: float = 0.1
+    alpha: int = 2
+    prune_primitives: bool = True
+    seed: int = 0
+
+    name = "ablation"
+
+    def __post_init__(self) -> None:
+        _check_params(self.num_routines, self.length_weight, self.alpha)
+
+    def params(self) -> dict[str, Any]:
+        return {
+            "proposer": self.name,
+            "num_routines": self.num_routines,
+            "length_weight": self.length_weight,
+            "alpha": self.alpha,
+            "prune_primitives": self.prune_primitives,
+            "seed": self.seed,
+        }
+
+    def mine(
+        self,
+        actions: Any,
+        action_meanings: Sequence[str] | None = None,
+        source: dict[str, Any] | None = None,
+    ) -> RoutineLibrary:
+        episodes, meanings, demo_source = _episodes_of(actions)
+        index = OccurrenceIndex(episodes)
+        selector = _Selector(index, self.length_weight, self.alpha, self.prune_primitives)
+        full = SequiturMiner(
+            self.num_routines, self.length_weight, self.alpha, self.prune_primitives
+        )
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            lengths = full.mine(episodes).lengths
+        rng = np.random.default_rng(self.seed)
+        routines = self.propose(episodes, index, selector, lengths, rng)
+        accepted = [(r, *selector.score(r)) for r in routines]
+        return _build_library(
+            accepted,
+            index,
+            self.num_routines,
+            self.params(),
+            action_meanings if action_meanings is not None else meanings,
+            {**demo_source, **(source or {})},
+        )
+
+    def propose(self, episodes, index, selector, lengths, rng) -> list[Routine]:
+        raise NotImplementedError
+
+
+@dataclass
+class RandomRoutines(_Ablation):
+    """RR: routines of the full model's lengths, actions drawn from those in the demo."""
+
+    name = "random"
+
+    def propose(self, episodes, index, selector, lengths, rng) -> list[Routine]:
+        present = np.unique(index.seq)
+        return [tuple(int(a) for a in rng.choice(present, size=n)) for n in lengths]
+
+
+@dataclass
+class EnumerationProposer(_Ablation):
+    """PbE: every sequence of each chosen length, scored and pruned like the full model.
+
+    A sequence absent from the demo scores only `λ·|ρ|`, below any that occurs, so the search
+    only has to enumerate the demo's own windows unless too few of them survive pruning.
+    """
+
+    name = "enumerate"
+
+    def propose(self, episodes, index, selector, lengths, rng) -> list[Routine]:
+        accepted: list[Routine] = []
+        for n in lengths:
+            windows = {
+                tuple(w)
+                for e in episodes
+                if e.size >= n
+                for w in np.lib.stride_tricks.sliding_window_view(e, n).tolist()
+            }
+            best = selector.select(
+                [w for w in windows if not selector.near_accepted(w, accepted)], 1
+            )
+            if best:
+                accepted.append(best[0][0])
+        return accepted
+
+
+@dataclass
+class RandomFetch(_Ablation):
+    """RF: random contiguous slices of the demo, of the full model's lengths."""
+
+    name = "random-fetch"
+
+    def propose(self, episodes, index, selector, lengths, rng) -> list[Routine]:
+        out = []
+        for n in lengths:
+            fitting = [e for e in episodes if e.size >= n]
+            e = fitting[int(rng.integers(len(fitting)))]
+            start = int(rng.integers(e.size - n + 1))
+            out.append(tuple(int(a) for a in e[start : start + n]))
+        return out
+
+
+@dataclass
+class RepeatProposer(_Ablation):
+    """RP: the k-th most frequent action repeated to the k-th length (FiGAR-style)."""
+
+    name = "repeat"
+
+    def propose(self, episodes, index, selector, lengths, rng) -> list[Routine]:
+        actions, counts = np.unique(index.seq, return_counts=True)
+        ranked = actions[np.lexsort((actions, -counts))]
+        return [(int(ranked[k % ranked.size]),) * n for k, n in enumerate(lengths)]
+
+
+PROPOSERS: dict[str, type] = {
+    "full": SequiturMiner,
+    "random": RandomRoutines,
+    "enumerate": EnumerationProposer,
+    "random-fetch": RandomFetch,
+    "repeat": RepeatProposer,
+}
+
+
+def make_proposer(
+    name: str = "full",
+    num_routines: int = 3,
+    length_weight: float = 0.1,
+    alpha: int = 2,
+    seed: int = 0,
+    prune_primitives: bool = True,
+) -> RoutineProposer:
+    """The proposer called `name` (`full`, `random`, `enumerate`, `random-fetch`, `repeat`)."""
+    if name not in PROPOSERS:
+        raise ValueError(f"unknown proposer {name!r}; choose from {', '.join(PROPOSERS)}")
+    if name == "full":
+        return SequiturMiner(num_routines, length_weight, alpha, prune_primitives)
+    return PROPOSERS[name](num_routines, length_weight, alpha, prune_primitives, seed)

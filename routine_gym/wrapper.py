@@ -1,0 +1,296 @@
+"""`RoutineActionWrapper`: add routines (macro-actions of primitive actions) to a Discrete env.
+
+The wrapper of the RAPL paper: the agent chooses among the `n` primitive actions and the `K`
+routines of a library, and a routine runs its primitive actions one inner step each. The
+primitive transitions it went through come back in `info`, so a learner can use them (RAPL's
+primitive-level critic update) while any other consumer sees an ordinary env whose reward is
+the true, undiscounted return.
+"""
+
+from __future__ import annotations
+
+import operator
+from collections.abc import Sequence
+from typing import Any, SupportsFloat
+
+import numpy as np
+
+import gymnasium as gym
+from gymnasium import spaces
+from gymnasium.core import ObsType
+from gymnasium.vector.utils import concatenate, create_empty_array, iterate
+from routine_gym.library import RoutineLibrary, routine_name
+
+__all__ = ["RoutineActionWrapper"]
+
+#: The action stored in the padding entries of `info["routine_actions"]`; never a valid action.
+PAD_ACTION = -1
+
+
+class RoutineActionWrapper(
+    gym.Wrapper[ObsType, int, ObsType, int], gym.utils.RecordConstructorArgs
+):
+    """Extends a `Discrete(n)` action space with `K` routines to `Discrete(n + K)`.
+
+    Action `a < n` is the primitive action `a`; action `n + k` runs routine `k`, a fixed
+    sequence of primitive actions, one inner `env.step` per primitive. A routine stops early
+    when the inner env terminates or truncates. Like :class:`gymnasium.wrappers.RepeatAction`,
+    one wrapper step may be several inner steps and the reward is their plain (undiscounted) sum,
+    so `RecordEpisodeStatistics`, Stable-Baselines3 or a person reading the returns see the true
+    return; unlike `RepeatAction`, each action has its own sequence, and every executed primitive
+    transition is reported in `info`, so a learner can discount them itself (RAPL) or ignore them
+    (the MacroAction baseline).
+
+    The step returns the last inner observation, the summed reward, the last inner step's
+    `terminated`/`truncated`, and the last inner `info` plus these keys:
+
+    - ``routine_index`` (int): `k` for routine `k`, `-1` for a primitive action.
+    - ``routine_length`` (int): the number of primitive steps executed, `1 ≤ L ≤ len(routine)`.
+    - ``routine_actions`` (np.int64 array): the primitive actions, executed first, then padding.
+    - ``routine_rewards`` (np.float64 array): the reward of each executed primitive step.
+    - ``routine_terminated``, ``routine_truncated`` (bool arrays): each step's flags; only the
+      last executed entry can be True, since a routine stops at the first end of episode.
+    - ``routine_observations`` (array, or the nested structure of the observation space): the
+      observation after each executed step, stacked; only with `record_observations=True`.
+
+    A primitive action is reported as a routine of length 1, so a learner has one code path.
+    Every array has the same length, :attr:`max_routine_length` (the longest routine, 1 with no
+    routines): the first `routine_length` entries are the executed steps and the rest padding
+    (action `-1`, reward `0.0`, flags `False`, observation zeros). The fixed shape is what lets
+    `SyncVectorEnv`/`AsyncVectorEnv` stack the infos of sub-envs that ran routines of different
+    lengths (they assume a same-shaped array per key), and with zero padding
+    `np.sum(gamma ** np.arange(max_routine_length) * info["routine_rewards"])` is the discounted
+    routine reward without a mask.
+
+    Recording observations copies one observation per primitive step, plus padding; pass
+    `record_observations=False` when the learner does not need the intermediate states.
+
+    Example:
+        >>> import gymnasium as gym
+        >>> from routine_gym.wrapper import RoutineActionWrapper
+        >>> env = RoutineActionWrapper(gym.make("CartPole-v1"), [[0, 1], [1, 1, 1]])
+        >>> env.action_space
+        Discrete(4)
+        >>> env.get_action_meanings()
+        ['0', '1', 'R0:0 1', 'R1:1 1 1']
+        >>> obs, info = env.reset(seed=123)
+        >>> obs, reward, terminated, truncated, info = env.step(3)  # routine 1: push right 3 times
+        >>> reward  # sum of 3 inner-step rewards
+        3.0
+        >>> info["routine_index"], info["routine_length"], info["routine_actions"]
+        (1, 3, array([1, 1, 1]))
+        >>> info["routine_rewards"], info["routine_observations"].shape
+        (array([1., 1., 1.]), (3, 4))
+        >>> obs, reward, terminated, truncated, info = env.step(0)  # a primitive: length 1
+        >>> info["routine_index"], info["routine_length"], info["routine_actions"]
+        (-1, 1, array([ 0, -1, -1]))
+        >>> info["routine_rewards"]
+        array([1., 0., 0.])
+
+    Attributes:
+        routines: the routines, each a tuple of primitive actions, routine `k` being action `n + k`.
+        num_primitive_actions: `n`, the size of the inner env's action space.
+        max_routine_length: the length of every `routine_*` array in `info`.
+        record_observations: whether `info` carries ``routine_observations``.
+    """
+
+    def __init__(
+        self,
+        env: gym.Env[ObsType, Any],
+        routines: RoutineLibrary | Sequence[Sequence[int]],
+        record_observations: bool = True,
+    ):
+        """Wrap `env`, adding one action per routine.
+
+        Args:
+            env: the env to wrap; its action space must be `Discrete(n)` (with `start=0`).
+            routines: a :class:`~routine_gym.library.RoutineLibrary`, or a sequence of routines,
+                each a non-empty sequence of primitive actions in `[0, n)` (lists, tuples or
+                integer numpy arrays). An empty sequence gives `Discrete(n)` back unchanged but
+                with the `routine_*` info keys.
+            record_observations: whether to stack the intermediate observations into
+                ``info["routine_observations"]``.
+
+        Raises:
+            TypeError: the action space is not `Discrete`, or a routine is not a sequence.
+            ValueError: the action space starts at a value other than 0, a routine is empty,
+                or a routine holds something that is not a primitive action of the env.
+        """
+        action_space = env.action_space
+        if not isinstance(action_space, spaces.Discrete):
+            raise TypeError(
+                "RoutineActionWrapper needs an env with a Discrete action space, "
+                f"actual action space: {action_space!r}"
+            )
+        if int(action_space.start) != 0:
+            # Routines, the info arrays and the -1 padding all speak of actions 0..n-1; an env
+            # that numbers its actions from elsewhere can be shifted by a small ActionWrapper.
+            raise ValueError(
+                "RoutineActionWrapper needs a Discrete action space starting at 0, "
+                f"actual action space: {action_space!r}"
+            )
+        n = int(action_space.n)
+        routine_tuples = _validate_routines(routines, n)
+
+        # Plain lists of ints, so that `env.spec` is JSON-serialisable and `gym.make(env.spec)`
+        # re-creates the wrapper (a RoutineLibrary's scores and provenance are not kept there).
+        gym.utils.RecordConstructorArgs.__init__(
+            self,
+            routines=[list(r) for r in routine_tuples],
+            record_observations=bool(record_observations),
+        )
+        gym.Wrapper.__init__(self, env)
+
+        self.routines: tuple[tuple[int, ...], ...] = routine_tuples
+        self.num_primitive_actions: int = n
+        self.max_routine_length: int = max((len(r) for r in routine_tuples), default=1)
+        self.record_observations: bool = bool(record_observations)
+        self.library: RoutineLibrary | None = (
+            routines if isinstance(routines, RoutineLibrary) else None
+        )
+        self.action_space = spaces.Discrete(n + len(routine_tuples))
+
+        # Everything a step needs that does not depend on the transitions is built once here:
+        # the primitive sequence of every action and its padded `routine_actions` array.
+        length = self.max_routine_length
+        self._sequences: tuple[tuple[int, ...], ...] = (
+            tuple((a,) for a in range(n)) + routine_tuples
+        )
+        self._padded_actions = np.full((n + len(routine_tuples), length), PAD_ACTION, np.int64)
+        for a, sequence in enumerate(self._sequences):
+            self._padded_actions[a, : len(sequence)] = sequence
+        self._zero_rewards = np.zeros(length, dtype=np.float64)
+        self._false_flags = np.zeros(length, dtype=np.bool_)
+        if self.record_observations:
+            padding = create_empty_array(env.observation_space, n=1, fn=np.zeros)
+            self._pad_observation = next(iter(iterate(env.observation_space, padding)))
+
+    def step(self, action: int) -> tuple[ObsType, SupportsFloat, bool, bool, dict[str, Any]]:
+        """Run the primitive action or routine `action`, stopping early at the end of episode.
+
+        Args:
+            action: an action of `Discrete(n + K)`.
+
+        Returns:
+            The last observation, the summed reward, the last `terminated` and `truncated`, and
+            the last inner info extended with the ``routine_*`` keys (see the class docstring).
+
+        Raises:
+            ValueError: `action` is not an integer of the wrapper's action space.
+        """
+        try:
+            a = operator.index(action)
+        except TypeError:
+            raise ValueError(
+                f"action {action!r} is not an integer action of {self.action_space}"
+            ) from None
+        if not 0 <= a < len(self._sequences):
+            raise ValueError(f"action {action!r} is outside the action space {self.action_space}")
+
+        sequence = self._sequences[a]
+        record = self.record_observations
+        observations = []
+        rewards = []
+        total_reward = 0.0
+        if a < self.num_primitive_actions:
+            # The caller's action object, as the inner env would see it without the wrapper.
+            sequence = (action,)
+        for primitive in sequence:
+            obs, reward, terminated, truncated, info = self.env.step(primitive)
+            reward = float(reward)
+            total_reward += reward
+            rewards.append(reward)
+            if record:
+                observations.append(obs)
+            if terminated or truncated:
+                break
+        executed = len(rewards)
+
+        routine_actions = self._padded_actions[a].copy()
+        routine_rewards = self._zero_rewards.copy()
+        routine_rewards[:executed] = rewards
+        routine_terminated = self._false_flags.copy()
+        routine_terminated[executed - 1] = terminated
+        routine_truncated = self._false_flags.copy()
+        routine_truncated[executed - 1] = truncated
+        if executed < len(sequence):
+            routine_actions[executed:] = PAD_ACTION
+
+        info = {
+            **info,
+            "routine_index": max(a - self.num_primitive_actions, -1),
+            "routine_length": executed,
+            "routine_actions": routine_actions,
+            "routine_rewards": routine_rewards,
+            "routine_terminated": routine_terminated,
+            "routine_truncated": routine_truncated,
+        }
+        if record:
+            observations.extend([self._pad_observation] * (self.max_routine_length - executed))
+            info["routine_observations"] = concatenate(
+                self.env.observation_space,
+                observations,
+                create_empty_array(
+                    self.env.observation_space, n=self.max_routine_length, fn=np.empty
+                ),
+            )
+        return obs, total_reward, terminated, truncated, info
+
+    def get_action_meanings(self) -> list[str]:
+        """Names of the `n + K` actions: the inner env's, then `"R{k}:{routine}"` per routine.
+
+        The primitive names come from `env.unwrapped.get_action_meanings()` when the inner env
+        has it (ALE, Procgen, MiniQbert), else from the routine library, else they are the action
+        ids (`"0"`, `"1"`, ...). A routine is named by its index and its actions separated by
+        spaces, as :meth:`RoutineLibrary.name` prints it: `"R0:UP UP RIGHT"`.
+        """
+        n = self.num_primitive_actions
+        meanings: list[str] | None = None
+        inner = getattr(self.env.unwrapped, "get_action_meanings", None)
+        if callable(inner):
+            meanings = [str(m) for m in inner()]
+        elif self.library is not None and self.library.action_meanings is not None:
+            meanings = list(self.library.action_meanings)
+        if meanings is None or len(meanings) != n:
+            meanings = [str(a) for a in range(n)]
+        return meanings + [
+            f"R{k}:{routine_name(routine, meanings)}" for k, routine in enumerate(self.routines)
+        ]
+
+
+def _validate_routines(
+    routines: RoutineLibrary | Sequence[Sequence[int]], n: int
+) -> tuple[tuple[int, ...], ...]:
+    """The routines as tuples of ints, after checking every action is one of `range(n)`."""
+    if isinstance(routines, RoutineLibrary):
+        routines = routines.routines
+    if isinstance(routines, str | bytes) or not isinstance(routines, Sequence | np.ndarray):
+        raise TypeError(
+            f"routines must be a RoutineLibrary or a sequence of action sequences, "
+            f"actual value: {routines!r}"
+        )
+    result = []
+    for k, routine in enumerate(routines):
+        if isinstance(routine, str | bytes) or not isinstance(routine, Sequence | np.ndarray):
+            raise TypeError(
+                f"routine {k} must be a sequence of primitive actions, actual value: {routine!r} "
+                "(for a single routine pass a list holding it, e.g. [[0, 1, 1]])"
+            )
+        if len(routine) == 0:
+            raise ValueError(f"routine {k} is empty; a routine needs at least one action")
+        actions = []
+        for a in routine:
+            if isinstance(a, bool | np.bool_) or not isinstance(a, int | np.integer):
+                raise ValueError(
+                    f"routine {k} has action {a!r} of type {type(a).__name__}; actions must be "
+                    f"integers in [0, {n})"
+                )
+            if not 0 <= a < n:
+                raise ValueError(
+                    f"routine {k} has action {int(a)}, outside the env's primitive actions "
+                    f"[0, {n})"
+                )
+            actions.append(int(a))
+        result.append(tuple(actions))
+    return tuple(result)
+
