@@ -72,64 +72,120 @@ class RoutineProposer(Protocol):
 
 
 class OccurrenceIndex:
-    """Finds every (overlapping) occurrence of a routine in a set of episodes.
+    """Counts and locates every (overlapping) occurrence of a routine in a set of episodes.
 
-    Positions are indexed by their first digram, so counting a routine costs time in the
-    number of places its first two actions occur, not in the length of the demonstration.
+    Every window of q ≤ Q consecutive actions inside an episode gets an integer code, so a
+    routine of up to Q actions is counted by one dictionary look-up. A longer routine is
+    bounded from above by the count of its rarest Q-gram (an occurrence of ρ contains one of
+    each of its Q-grams), and located by filtering the positions of that Q-gram. The miner
+    uses the bound to count exactly only the candidates that can still make the library.
     """
 
-    def __init__(self, episodes: Sequence[np.ndarray]) -> None:
-        self.episodes = [np.asarray(e, dtype=np.int64) for e in episodes]
-        lengths = np.array([len(e) for e in self.episodes], dtype=np.int64)
+    def __init__(self, episodes: Sequence[np.ndarray], max_gram: int = 4) -> None:
+        episodes = [np.asarray(e, dtype=np.int64) for e in episodes]
+        lengths = np.array([e.size for e in episodes], dtype=np.int64)
         self.offsets = np.concatenate([[0], np.cumsum(lengths)])
-        self.seq = (
-            np.concatenate(self.episodes) if self.episodes else np.zeros(0, dtype=np.int64)
-        )
-        self.episode_of = np.repeat(np.arange(len(lengths)), lengths)
-        self.num_actions = int(self.seq.max()) + 1 if self.seq.size else 0
-        # Digram code per position; -1 where the digram would cross an episode boundary.
-        n = self.seq.size
-        codes = np.full(max(n - 1, 0), -1, dtype=np.int64)
-        if n > 1:
-            same = self.episode_of[:-1] == self.episode_of[1:]
-            codes[same] = self.seq[:-1][same] * self.num_actions + self.seq[1:][same]
+        raw = np.concatenate(episodes) if episodes else np.zeros(0, dtype=np.int64)
+        self.seq = raw
+        self.episode_of = np.repeat(np.arange(lengths.size), lengths)
+        # Dense ids keep the window codes small whatever the action ids are.
+        self.alphabet, dense = np.unique(raw, return_inverse=True)
+        self._dense = dense.astype(np.int64)
+        self._dense_id = {int(a): i for i, a in enumerate(self.alphabet.tolist())}
+        base = max(int(self.alphabet.size), 1)
+        self._base = base
+        self.max_gram = 1
+        while self.max_gram < max_gram and base ** (self.max_gram + 1) < 2**62:
+            self.max_gram += 1
+        self._codes: dict[int, np.ndarray] = {}
+        self._counts: dict[int, dict[int, int]] = {}
+        q = self.max_gram
+        codes = self.window_codes(q)
         valid = np.flatnonzero(codes >= 0)
-        order = valid[np.argsort(codes[valid], kind="stable")]
-        self._positions = order
-        self._keys, self._starts = np.unique(codes[order], return_index=True)
-        self._ends = np.append(self._starts[1:], order.size)
+        self._positions = valid[np.argsort(codes[valid], kind="stable")]
+        self._keys, self._starts, counts = np.unique(
+            codes[self._positions], return_index=True, return_counts=True
+        )
+        self._ends = self._starts + counts
 
-    def _digram_slice(self, a: int, b: int) -> tuple[int, int]:
-        if not (0 <= a < self.num_actions and 0 <= b < self.num_actions):
-            return 0, 0
-        key = a * self.num_actions + b
-        i = int(np.searchsorted(self._keys, key))
-        if i == self._keys.size or self._keys[i] != key:
-            return 0, 0
-        return int(self._starts[i]), int(self._ends[i])
+    def window_codes(self, q: int) -> np.ndarray:
+        """Code of the q actions starting at each position; -1 where they leave the episode."""
+        if q not in self._codes:
+            n = self._dense.size
+            codes = np.full(n, -1, dtype=np.int64)
+            m = n - q + 1
+            if m > 0:
+                window = np.zeros(m, dtype=np.int64)
+                for j in range(q):
+                    window = window * self._base + self._dense[j : j + m]
+                inside = self.episode_of[:m] == self.episode_of[q - 1 : q - 1 + m]
+                codes[:m][inside] = window[inside]
+            self._codes[q] = codes
+        return self._codes[q]
 
-    def digram_count(self, a: int, b: int) -> int:
-        """Occurrences of the digram `(a, b)`: an upper bound of any routine it starts."""
-        start, end = self._digram_slice(a, b)
-        return end - start
+    def _gram_counts(self, q: int) -> dict[int, int]:
+        if q not in self._counts:
+            codes = self.window_codes(q)
+            keys, counts = np.unique(codes[codes >= 0], return_counts=True)
+            self._counts[q] = dict(zip(keys.tolist(), counts.tolist(), strict=True))
+        return self._counts[q]
+
+    def _encode(self, gram: Sequence[int]) -> int | None:
+        """Window code of `gram`, or None when one of its actions never occurs."""
+        code = 0
+        for a in gram:
+            i = self._dense_id.get(a)
+            if i is None:
+                return None
+            code = code * self._base + i
+        return code
+
+    def upper_bound(self, routine: Sequence[int]) -> int:
+        """A cheap upper bound of `count(routine)`; exact for routines of ≤ max_gram actions."""
+        q = min(len(routine), self.max_gram)
+        counts = self._gram_counts(q)
+        bound = self.seq.size
+        for j in range(len(routine) - q + 1):
+            code = self._encode(routine[j : j + q])
+            bound = min(bound, 0 if code is None else counts.get(code, 0))
+            if bound == 0:
+                break
+        return bound
 
     def positions(self, routine: Sequence[int]) -> np.ndarray:
-        """Start positions (in the concatenated sequence) of every occurrence, sorted."""
+        """Start positions (in the concatenated episodes) of every occurrence, ascending."""
         routine = tuple(int(a) for a in routine)
-        if len(routine) == 1:
-            return np.flatnonzero(self.seq == routine[0])
-        start, end = self._digram_slice(routine[0], routine[1])
-        p = np.sort(self._positions[start:end])
-        last = p + len(routine) - 1
-        keep = last < self.seq.size
-        p, last = p[keep], last[keep]
-        p = p[self.episode_of[last] == self.episode_of[p]]
-        for j in range(2, len(routine)):
+        n, q = len(routine), min(len(routine), self.max_gram)
+        if n <= self.max_gram:
+            code = self._encode(routine)
+            if code is None:
+                return np.zeros(0, dtype=np.int64)
+            return np.flatnonzero(self.window_codes(n) == code)
+        # Start from the rarest Q-gram of the routine, then check the other actions.
+        best, best_slice = 0, (0, 0)
+        for j in range(n - q + 1):
+            code = self._encode(routine[j : j + q])
+            if code is None:
+                return np.zeros(0, dtype=np.int64)
+            i = int(np.searchsorted(self._keys, code))
+            if i == self._keys.size or self._keys[i] != code:
+                return np.zeros(0, dtype=np.int64)
+            span = (int(self._starts[i]), int(self._ends[i]))
+            if j == 0 or span[1] - span[0] < best_slice[1] - best_slice[0]:
+                best, best_slice = j, span
+        p = self._positions[best_slice[0] : best_slice[1]] - best
+        p = p[(p >= 0) & (p + n <= self.seq.size)]
+        p = p[self.episode_of[p] == self.episode_of[p + n - 1]]
+        for j in range(n):
+            if best <= j < best + q:
+                continue
             p = p[self.seq[p + j] == routine[j]]
         return p
 
     def count(self, routine: Sequence[int]) -> int:
         """f(ρ): overlapping occurrences, none across an episode boundary."""
+        if len(routine) <= self.max_gram:
+            return self.upper_bound(routine)
         return int(self.positions(routine).size)
 
     def occurrences(self, routine: Sequence[int]) -> tuple[tuple[int, int], ...]:
@@ -209,15 +265,13 @@ class _Selector:
         """The first `k` candidates by descending score that survive pruning.
 
         Exact frequencies are computed lazily: a candidate waits in the heap under an upper
-        bound (its first digram's count), and is counted only when that bound reaches the top.
+        bound (its rarest Q-gram's count), and is counted only when that bound reaches the top.
         """
         heap: list[tuple[tuple[float, int, Routine], bool, int]] = []
         for routine in candidates:
             if self.near_primitive(routine):
                 continue
-            bound = self.index.digram_count(routine[0], routine[1]) if len(routine) > 1 else (
-                self.index.count(routine)
-            )
+            bound = self.index.upper_bound(routine)
             heap.append((_sort_key(bound + self.length_weight * len(routine), routine), False, 0))
         heapq.heapify(heap)
         accepted: list[tuple[Routine, float, int]] = []
@@ -386,7 +440,7 @@ class RandomRoutines(_Ablation):
     name = "random"
 
     def propose(self, episodes, index, selector, lengths, rng) -> list[Routine]:
-        present = np.unique(index.seq)
+        present = index.alphabet
         return [tuple(int(a) for a in rng.choice(present, size=n)) for n in lengths]
 
 

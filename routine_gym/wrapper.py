@@ -13,18 +13,22 @@ import operator
 from collections.abc import Sequence
 from typing import Any, SupportsFloat
 
-import numpy as np
-
 import gymnasium as gym
+import numpy as np
 from gymnasium import spaces
 from gymnasium.core import ObsType
-from gymnasium.vector.utils import concatenate, create_empty_array, iterate
+from gymnasium.vector.utils import concatenate, create_empty_array
+
 from routine_gym.library import RoutineLibrary, routine_name
 
 __all__ = ["RoutineActionWrapper"]
 
 #: The action stored in the padding entries of `info["routine_actions"]`; never a valid action.
 PAD_ACTION = -1
+#: Steps served by one allocation of the `routine_*` info arrays (see `_new_info_blocks`).
+_BLOCK_ROWS = 256
+# Observation spaces whose samples are numpy arrays (or integers) of a fixed shape and dtype.
+_ARRAY_SPACES = (spaces.Box, spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary)
 
 
 class RoutineActionWrapper(
@@ -92,6 +96,7 @@ class RoutineActionWrapper(
         num_primitive_actions: `n`, the size of the inner env's action space.
         max_routine_length: the length of every `routine_*` array in `info`.
         record_observations: whether `info` carries ``routine_observations``.
+        library: the `RoutineLibrary` given to the constructor, or None for plain sequences.
     """
 
     def __init__(
@@ -150,20 +155,39 @@ class RoutineActionWrapper(
         )
         self.action_space = spaces.Discrete(n + len(routine_tuples))
 
-        # Everything a step needs that does not depend on the transitions is built once here:
-        # the primitive sequence of every action and its padded `routine_actions` array.
-        length = self.max_routine_length
+        # The primitive sequence of every action of Discrete(n + K), primitives included.
         self._sequences: tuple[tuple[int, ...], ...] = (
             tuple((a,) for a in range(n)) + routine_tuples
         )
-        self._padded_actions = np.full((n + len(routine_tuples), length), PAD_ACTION, np.int64)
+        self._padded_actions = np.full(
+            (len(self._sequences), self.max_routine_length), PAD_ACTION, dtype=np.int64
+        )
         for a, sequence in enumerate(self._sequences):
             self._padded_actions[a, : len(sequence)] = sequence
-        self._zero_rewards = np.zeros(length, dtype=np.float64)
-        self._false_flags = np.zeros(length, dtype=np.bool_)
-        if self.record_observations:
-            padding = create_empty_array(env.observation_space, n=1, fn=np.zeros)
-            self._pad_observation = next(iter(iterate(env.observation_space, padding)))
+        # Array observations are written straight into a per-step array; structured ones
+        # (Dict, Tuple, ...) go through Gymnasium's batching helpers, which cost ~10x more.
+        obs_space = env.observation_space
+        self._array_observations = isinstance(obs_space, _ARRAY_SPACES)
+        if self._array_observations:
+            self._observation_shape = obs_space.shape
+            self._observation_dtype = obs_space.dtype
+        elif self.record_observations:
+            self._pad_observation = _zero_observation(obs_space)
+        self._new_info_blocks()
+
+    def _new_info_blocks(self) -> None:
+        """Allocate the arrays the next `_BLOCK_ROWS` steps take their info rows from.
+
+        Creating four small arrays per step costs more than the rest of the step together;
+        a row of a pre-filled block is a cheaper new array, does not share memory with any
+        other step's row (so a consumer may keep or modify it), and its padding is already set.
+        """
+        shape = (_BLOCK_ROWS, self.max_routine_length)
+        self._block_actions = np.full(shape, PAD_ACTION, dtype=np.int64)
+        self._block_rewards = np.zeros(shape, dtype=np.float64)
+        self._block_terminated = np.zeros(shape, dtype=np.bool_)
+        self._block_truncated = np.zeros(shape, dtype=np.bool_)
+        self._block_row = 0
 
     def step(self, action: int) -> tuple[ObsType, SupportsFloat, bool, bool, dict[str, Any]]:
         """Run the primitive action or routine `action`, stopping early at the end of episode.
@@ -184,57 +208,68 @@ class RoutineActionWrapper(
             raise ValueError(
                 f"action {action!r} is not an integer action of {self.action_space}"
             ) from None
-        if not 0 <= a < len(self._sequences):
+        sequences = self._sequences
+        if not 0 <= a < len(sequences):
             raise ValueError(f"action {action!r} is outside the action space {self.action_space}")
+        n = self.num_primitive_actions
+        # A primitive goes to the inner env as the caller gave it, as it would without the wrapper.
+        sequence = sequences[a] if a >= n else (action,)
 
-        sequence = self._sequences[a]
-        record = self.record_observations
-        observations = []
+        env_step = self.env.step
         rewards = []
-        total_reward = 0.0
-        if a < self.num_primitive_actions:
-            # The caller's action object, as the inner env would see it without the wrapper.
-            sequence = (action,)
+        observations = [] if self.record_observations else None
         for primitive in sequence:
-            obs, reward, terminated, truncated, info = self.env.step(primitive)
-            reward = float(reward)
-            total_reward += reward
-            rewards.append(reward)
-            if record:
+            obs, reward, terminated, truncated, info = env_step(primitive)
+            rewards.append(float(reward))
+            if observations is not None:
                 observations.append(obs)
             if terminated or truncated:
                 break
         executed = len(rewards)
 
-        routine_actions = self._padded_actions[a].copy()
-        routine_rewards = self._zero_rewards.copy()
-        routine_rewards[:executed] = rewards
-        routine_terminated = self._false_flags.copy()
-        routine_terminated[executed - 1] = terminated
-        routine_truncated = self._false_flags.copy()
-        routine_truncated[executed - 1] = truncated
-        if executed < len(sequence):
-            routine_actions[executed:] = PAD_ACTION
+        row = self._block_row
+        if row == _BLOCK_ROWS:
+            self._new_info_blocks()
+            row = 0
+        self._block_row = row + 1
+        routine_actions = self._block_actions[row]
+        routine_rewards = self._block_rewards[row]
+        routine_terminated = self._block_terminated[row]
+        routine_truncated = self._block_truncated[row]
+        if executed == 1:
+            routine_actions[0] = sequences[a][0]
+            routine_rewards[0] = rewards[0]
+        else:
+            routine_actions[:executed] = self._padded_actions[a, :executed]
+            routine_rewards[:executed] = rewards
+        if terminated:
+            routine_terminated[executed - 1] = True
+        if truncated:
+            routine_truncated[executed - 1] = True
 
-        info = {
-            **info,
-            "routine_index": max(a - self.num_primitive_actions, -1),
-            "routine_length": executed,
-            "routine_actions": routine_actions,
-            "routine_rewards": routine_rewards,
-            "routine_terminated": routine_terminated,
-            "routine_truncated": routine_truncated,
-        }
-        if record:
-            observations.extend([self._pad_observation] * (self.max_routine_length - executed))
-            info["routine_observations"] = concatenate(
-                self.env.observation_space,
-                observations,
-                create_empty_array(
-                    self.env.observation_space, n=self.max_routine_length, fn=np.empty
-                ),
-            )
-        return obs, total_reward, terminated, truncated, info
+        # Extended in place, as Gymnasium's own wrappers (RecordEpisodeStatistics) do.
+        info["routine_index"] = a - n if a >= n else -1
+        info["routine_length"] = executed
+        info["routine_actions"] = routine_actions
+        info["routine_rewards"] = routine_rewards
+        info["routine_terminated"] = routine_terminated
+        info["routine_truncated"] = routine_truncated
+        if observations is not None:
+            info["routine_observations"] = self._stack_observations(observations)
+        return obs, sum(rewards), terminated, truncated, info
+
+    def _stack_observations(self, observations: list[Any]) -> Any:
+        """The executed observations stacked and zero-padded to `max_routine_length`."""
+        length = self.max_routine_length
+        if self._array_observations:
+            # np.zeros: the padding rows are zero already (and large arrays are zeroed lazily).
+            stacked = np.zeros((length, *self._observation_shape), dtype=self._observation_dtype)
+            for i, obs in enumerate(observations):
+                stacked[i] = obs
+            return stacked
+        padding = [self._pad_observation] * (length - len(observations))
+        out = create_empty_array(self.observation_space, n=length, fn=np.empty)
+        return concatenate(self.observation_space, observations + padding, out)
 
     def get_action_meanings(self) -> list[str]:
         """Names of the `n + K` actions: the inner env's, then `"R{k}:{routine}"` per routine.
@@ -287,10 +322,23 @@ def _validate_routines(
                 )
             if not 0 <= a < n:
                 raise ValueError(
-                    f"routine {k} has action {int(a)}, outside the env's primitive actions "
-                    f"[0, {n})"
+                    f"routine {k} has action {int(a)}, outside the env's primitive actions [0, {n})"
                 )
             actions.append(int(a))
         result.append(tuple(actions))
     return tuple(result)
 
+
+def _zero_observation(space: spaces.Space) -> Any:
+    """The all-zeros observation of `space`, which pads ``routine_observations``."""
+    if isinstance(space, _ARRAY_SPACES):
+        return create_empty_array(space, n=1, fn=np.zeros)[0]
+    if isinstance(space, spaces.Dict):
+        return {key: _zero_observation(sub) for key, sub in space.spaces.items()}
+    if isinstance(space, spaces.Tuple):
+        return tuple(_zero_observation(sub) for sub in space.spaces)
+    raise TypeError(
+        "record_observations=True needs an observation space built from Box, Discrete, "
+        f"MultiDiscrete, MultiBinary, Dict and Tuple, actual space: {space!r}; "
+        "pass record_observations=False"
+    )

@@ -1,0 +1,648 @@
+"""RAPL-A2C, plain A2C and the MacroAction baseline in one CleanRL-style file (SPEC §5).
+
+    python algos/rapl_a2c.py --env-id ALE/Qbert-v5                  # RAPL-A2C, shipped demo
+    python algos/rapl_a2c.py --env-id ALE/Qbert-v5 --mode a2c       # plain A2C
+    python algos/rapl_a2c.py --env-id ALE/Qbert-v5 --mode macro     # routines as black boxes
+
+The agent acts in `Discrete(|A| + K)`: the primitive actions plus K routines mined from one
+demonstration. A decision at primitive time t_i runs a routine of executed length ℓ_i; the
+vector env returns the primitive rewards (and, for RAPL, observations) of every inner step in
+`info`. RAPL-A2C then uses
+
+    R_i = Σ_{τ=t_i}^{t_i+ℓ_i-1} γ^{τ-t_i} r_τ,   Γ_i = γ^{ℓ_i}                  (routine reward)
+    A_routine(i) = R_i + Γ_i R_{i+1} + … + γ^{t_N - t_i} V(s_{t_N}) − V(s_{t_i})  (actor, critic)
+    A_prim(τ)    = Σ_{τ'≥τ} γ^{τ'-τ} r_τ' + γ^{t_N-τ} V(s_{t_N}) − V(s_τ)         (critic only)
+    L = L_policy + λ_entropy L_entropy + λ_value (‖A_routine‖² + λ_prim ‖A_prim‖²)
+
+where A_prim is taken at every primitive state visited *inside* a routine (the states where a
+routine starts already carry A_routine, whose target is the same return). `--mode macro`
+treats routines as black boxes (summed reward, one γ per decision, no A_prim); `--mode a2c`
+has no routines. Logged steps (`global_step`, `charts/SPS`) count primitive agent steps.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import sys
+import time
+import warnings
+from dataclasses import asdict, dataclass
+from typing import Literal
+
+import gymnasium as gym
+import numpy as np
+import torch
+import torch.nn as nn
+import tyro
+from torch.distributions.categorical import Categorical
+from torch.utils.tensorboard import SummaryWriter
+
+import routine_gym
+from routine_gym.atomic import atomic_write_text
+from routine_gym.demo import Demo, record_agent_demo, shipped_demo_path
+from routine_gym.envs.factory import (
+    default_env_kwargs,
+    is_atari,
+    is_procgen,
+    make_env,
+    make_primitive_env,
+    preprocess,
+)
+from routine_gym.library import RoutineLibrary
+from routine_gym.metrics import human_normalized_score
+from routine_gym.mining import make_proposer
+from routine_gym.returns import decision_returns, primitive_returns, routine_reward_and_discount
+
+
+@dataclass
+class Args:
+    exp_name: str = os.path.basename(__file__)[: -len(".py")]
+    """the name of this experiment"""
+    seed: int = 1
+    """seed of the experiment"""
+    torch_deterministic: bool = True
+    """if toggled, `torch.backends.cudnn.deterministic=True`"""
+    cuda: bool = False
+    """if toggled, use CUDA when available (the CPU is the default)"""
+    capture_video: bool = False
+    """whether to capture videos of the agent (in `videos/`)"""
+
+    # Algorithm
+    env_id: str = "ALE/Qbert-v5"
+    """the id of the environment (`ALE/*-v5`, `*NoFrameskip-v4`, `procgen/CoinRun-v0`, any discrete env)"""
+    mode: Literal["rapl", "a2c", "macro"] = "rapl"
+    """rapl: RAPL-A2C; a2c: plain A2C on primitives; macro: the MacroAction baseline"""
+    total_timesteps: int = 10_000_000
+    """total primitive agent steps of the experiment"""
+    learning_rate: float = 7e-4
+    """the learning rate of the RMSprop optimizer"""
+    anneal_lr: bool = True
+    """linear decay of the learning rate to 0"""
+    num_envs: int = 16
+    """the number of parallel environments"""
+    num_steps: int = 5
+    """decisions per environment per rollout (N)"""
+    gamma: float = 0.99
+    """the discount factor γ per primitive step"""
+    ent_coef: float = 0.01
+    """coefficient of the entropy bonus (λ_entropy)"""
+    vf_coef: float = 0.5
+    """coefficient of the value loss (λ_value)"""
+    prim_coef: float = 1.0
+    """coefficient of the primitive-level value loss (λ_prim), RAPL only"""
+    max_grad_norm: float = 0.5
+    """the maximum norm for gradient clipping"""
+    rmsprop_alpha: float = 0.99
+    """RMSprop smoothing constant"""
+    rmsprop_eps: float = 1e-5
+    """RMSprop epsilon"""
+    async_envs: bool = False
+    """step the environments in subprocesses (AsyncVectorEnv) instead of in this process"""
+
+    # Routines
+    demo: str | None = None
+    """demo to mine routines from (default: the shipped demo of the env in demos/)"""
+    routines: str | None = None
+    """a routine library JSON to use instead of mining a demo"""
+    num_routines: int = 3
+    """K, the number of routines to mine"""
+    length_weight: float = 0.1
+    """λ_length in the routine score f + λ·len"""
+    alpha: int = 2
+    """Levenshtein distance under which similar routines are pruned"""
+    proposer: Literal["full", "random", "enumerate", "random-fetch", "repeat"] = "full"
+    """full: Sequitur (the paper's model); the others are the discovery ablations"""
+
+    # Procgen
+    num_levels: int = 100
+    """Procgen: number of training levels"""
+    start_level: int = 0
+    """Procgen: first training level"""
+    distribution_mode: Literal["easy", "hard"] = "easy"
+    """Procgen: level difficulty for training"""
+    eval_distribution_mode: Literal["easy", "hard"] = "easy"
+    """Procgen: difficulty of the (unseen) evaluation levels"""
+
+    # Running it
+    save_model: bool = False
+    """save the final model to runs/{run_name}/model.pt"""
+    checkpoint_every: int = 0
+    """save a resumable checkpoint every this many primitive steps (0: never)"""
+    resume: str | None = None
+    """checkpoint file (or run folder) to resume a killed run from"""
+    eval_episodes: int = 10
+    """episodes to evaluate the final policy on (0 disables); results in eval.json"""
+    record_demo: str | None = None
+    """record the best of --demo-episodes episodes of the trained agent to this demo file"""
+    demo_episodes: int = 10
+    """episodes to pick the best demo from"""
+    log_every: int = 10_000
+    """print a progress line every this many primitive steps"""
+    run_dir: str = "runs"
+    """where run folders go"""
+    torch_threads: int = 0
+    """torch CPU threads (0: torch's default)"""
+
+
+# ---------------------------------------------------------------------------------------------
+# Networks (SPEC §5): Nature CNN on Atari, IMPALA CNN on Procgen, an MLP for flat observations
+# and a small CNN for other images.
+# ---------------------------------------------------------------------------------------------
+
+
+def layer_init(layer: nn.Module, std: float = np.sqrt(2), bias_const: float = 0.0) -> nn.Module:
+    torch.nn.init.orthogonal_(layer.weight, std)
+    torch.nn.init.constant_(layer.bias, bias_const)
+    return layer
+
+
+class ResidualBlock(nn.Module):
+    def __init__(self, channels: int) -> None:
+        super().__init__()
+        self.conv0 = nn.Conv2d(channels, channels, 3, padding=1)
+        self.conv1 = nn.Conv2d(channels, channels, 3, padding=1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x + self.conv1(torch.relu(self.conv0(torch.relu(x))))
+
+
+class ImpalaStage(nn.Module):
+    def __init__(self, in_channels: int, out_channels: int) -> None:
+        super().__init__()
+        self.conv = nn.Conv2d(in_channels, out_channels, 3, padding=1)
+        self.pool = nn.MaxPool2d(3, stride=2, padding=1)
+        self.res0 = ResidualBlock(out_channels)
+        self.res1 = ResidualBlock(out_channels)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.res1(self.res0(self.pool(self.conv(x))))
+
+
+def image_layout(shape: tuple[int, ...]) -> tuple[int, int, int, bool]:
+    """(channels, height, width, channels_last) of an image observation."""
+    if len(shape) == 2:
+        return 1, shape[0], shape[1], False
+    if shape[-1] in (1, 3, 4) and shape[0] not in (1, 3, 4):
+        return shape[2], shape[0], shape[1], True
+    return shape[0], shape[1], shape[2], False
+
+
+def make_torso(env_id: str, obs_shape: tuple[int, ...]) -> tuple[nn.Module, int]:
+    """The feature extractor for `env_id`'s observations and its output size."""
+    if len(obs_shape) == 1:
+        return nn.Sequential(
+            layer_init(nn.Linear(obs_shape[0], 64)), nn.Tanh(),
+            layer_init(nn.Linear(64, 64)), nn.Tanh(),
+        ), 64
+    c, h, w, _ = image_layout(obs_shape)
+    if is_atari(env_id):  # Nature CNN (Mnih et al. 2015)
+        return nn.Sequential(
+            layer_init(nn.Conv2d(c, 32, 8, stride=4)), nn.ReLU(),
+            layer_init(nn.Conv2d(32, 64, 4, stride=2)), nn.ReLU(),
+            layer_init(nn.Conv2d(64, 64, 3, stride=1)), nn.ReLU(),
+            nn.Flatten(),
+            layer_init(nn.Linear(64 * 7 * 7, 512)), nn.ReLU(),
+        ), 512
+    if is_procgen(env_id):  # IMPALA CNN (Espeholt et al. 2018), as in the Procgen paper
+        stages, channels = [], c
+        for out in (16, 32, 32):
+            stages.append(ImpalaStage(channels, out))
+            channels = out
+        with torch.no_grad():
+            n = nn.Sequential(*stages)(torch.zeros(1, c, h, w)).numel()
+        return nn.Sequential(
+            *stages, nn.Flatten(), nn.ReLU(), layer_init(nn.Linear(n, 256)), nn.ReLU()
+        ), 256
+    conv = nn.Sequential(
+        layer_init(nn.Conv2d(c, 16, 3, stride=2)), nn.ReLU(),
+        layer_init(nn.Conv2d(16, 32, 3, stride=2)), nn.ReLU(),
+        nn.Flatten(),
+    )
+    with torch.no_grad():
+        n = conv(torch.zeros(1, c, h, w)).numel()
+    return nn.Sequential(conv, layer_init(nn.Linear(n, 256)), nn.ReLU()), 256
+
+
+class Agent(nn.Module):
+    def __init__(self, env_id: str, obs_space: gym.spaces.Box, num_actions: int) -> None:
+        super().__init__()
+        self.obs_shape = tuple(obs_space.shape)
+        self.is_image = len(self.obs_shape) >= 2
+        self.channels_last = self.is_image and image_layout(self.obs_shape)[3]
+        # uint8 images are scaled to [0, 1]; flat observations go in as they are.
+        self.scale = 255.0 if obs_space.dtype == np.uint8 else 1.0
+        self.torso, features = make_torso(env_id, self.obs_shape)
+        self.actor = layer_init(nn.Linear(features, num_actions), std=0.01)
+        self.critic = layer_init(nn.Linear(features, 1), std=1.0)
+
+    def features(self, obs: torch.Tensor) -> torch.Tensor:
+        x = obs.float() / self.scale
+        if self.is_image:
+            if x.dim() == 3:  # (B, H, W) grey images
+                x = x.unsqueeze(1)
+            elif self.channels_last:
+                x = x.permute(0, 3, 1, 2)
+        return self.torso(x)
+
+    def get_value(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.critic(self.features(obs)).squeeze(-1)
+
+    def get_action_and_value(self, obs: torch.Tensor, action: torch.Tensor | None = None):
+        hidden = self.features(obs)
+        dist = Categorical(logits=self.actor(hidden))
+        if action is None:
+            action = dist.sample()
+        return action, dist.log_prob(action), dist.entropy(), self.critic(hidden).squeeze(-1)
+
+
+# ---------------------------------------------------------------------------------------------
+# Routines, checkpoints, evaluation
+# ---------------------------------------------------------------------------------------------
+
+
+def load_routines(args: Args) -> RoutineLibrary | None:
+    """The routine library of this run: from --routines, --demo, or the shipped demo."""
+    if args.mode == "a2c":
+        return None
+    if args.routines:
+        library = RoutineLibrary.load(args.routines)
+        if library.source.get("env_id") not in (None, args.env_id):
+            raise ValueError(
+                f"{args.routines} was mined from a demo of {library.source['env_id']}, "
+                f"not {args.env_id}"
+            )
+        return library
+    demo_path = args.demo or shipped_demo_path(args.env_id)
+    if demo_path is None:
+        raise SystemExit(
+            f"--mode {args.mode} needs routines, and no demo of {args.env_id} ships in demos/.\n"
+            f"Record one, then pass it with --demo:\n"
+            f"  routine-gym record {args.env_id} --policy random --episodes 10 --out demo.npz\n"
+            f"  python algos/rapl_a2c.py --env-id {args.env_id} --mode a2c "
+            f"--record-demo demo.npz   # a trained A2C expert's demo, as in the paper\n"
+            f"or give a mined library with --routines LIB.json (routine-gym mine DEMO --out ...)"
+        )
+    demo = Demo.load(demo_path, env_id=args.env_id)
+    proposer = make_proposer(
+        args.proposer, args.num_routines, args.length_weight, args.alpha, seed=args.seed
+    )
+    return proposer.mine(demo, source={"path": demo_path})
+
+
+def rng_state() -> dict:
+    """Python, NumPy and torch RNG states as tensors and plain values (weights_only-safe)."""
+    kind, keys, pos, has_gauss, cached = np.random.get_state()
+    py_version, py_state, py_gauss = random.getstate()
+    return {
+        "python": [py_version, list(py_state), py_gauss],
+        "numpy": [kind, torch.from_numpy(keys.astype(np.int64)), pos, has_gauss, cached],
+        "torch": torch.get_rng_state(),
+    }
+
+
+def set_rng_state(state: dict) -> None:
+    py_version, py_state, py_gauss = state["python"]
+    random.setstate((py_version, tuple(py_state), py_gauss))
+    kind, keys, pos, has_gauss, cached = state["numpy"]
+    np.random.set_state((kind, keys.numpy().astype(np.uint32), pos, has_gauss, cached))
+    torch.set_rng_state(state["torch"])
+
+
+def save_checkpoint(path: str, agent, optimizer, global_step: int, iteration: int,
+                    args: Args, library: RoutineLibrary | None) -> None:
+    """Write a resumable checkpoint atomically (a kill mid-write keeps the previous one)."""
+    tmp = path + ".tmp"
+    torch.save(
+        {
+            "model": agent.state_dict(),
+            "optimizer": optimizer.state_dict(),
+            "global_step": global_step,
+            "iteration": iteration,
+            "rng": rng_state(),
+            "args": json.dumps(asdict(args)),
+            "library": json.dumps(library.to_dict()) if library is not None else "",
+        },
+        tmp,
+    )
+    os.replace(tmp, path)
+
+
+def evaluate(agent: Agent, args: Args, library, device, episodes: int) -> dict:
+    """Run the trained policy for `episodes` full games (no training wrappers)."""
+    env_kwargs = eval_env_kwargs(args)
+    env = make_env(args.env_id, args.seed + 10_000, routines=library, training=False,
+                   env_kwargs=env_kwargs)()
+    returns, lengths = [], []
+    obs, _ = env.reset(seed=args.seed + 10_000)
+    while len(returns) < episodes:
+        with torch.no_grad():
+            action, _, _, _ = agent.get_action_and_value(torch.as_tensor(obs[None], device=device))
+        obs, _, terminated, truncated, info = env.step(int(action[0]))
+        if terminated or truncated:
+            returns.append(float(info["episode"]["r"]))
+            lengths.append(int(info["episode"]["l"]))
+            obs, _ = env.reset()
+    env.close()
+    summary = {
+        "env_id": args.env_id, "mode": args.mode, "episodes": episodes,
+        "returns": returns, "lengths": lengths,
+        "mean_return": float(np.mean(returns)), "std_return": float(np.std(returns)),
+        "env_kwargs": env_kwargs,
+    }
+    if is_atari(args.env_id):
+        try:
+            summary["human_normalized_score"] = human_normalized_score(
+                summary["mean_return"], args.env_id
+            )
+        except (KeyError, ValueError):
+            pass
+    return summary
+
+
+def train_env_kwargs(args: Args) -> dict:
+    if is_procgen(args.env_id):
+        return {"num_levels": args.num_levels, "start_level": args.start_level,
+                "distribution_mode": args.distribution_mode}
+    return {}
+
+
+def eval_env_kwargs(args: Args) -> dict:
+    """Procgen is evaluated on levels never trained on; other envs as in training."""
+    if is_procgen(args.env_id):
+        return {"num_levels": 0, "start_level": args.start_level + args.num_levels,
+                "distribution_mode": args.eval_distribution_mode}
+    return {}
+
+
+def merge_final(info: dict, key: str, done: np.ndarray) -> np.ndarray:
+    """`info[key]` per env, taken from `final_info` for envs whose episode just ended.
+
+    With same-step autoreset, the step that ends an episode returns the reset's info, and the
+    ended step's info moves to `info["final_info"]`.
+    """
+    value = info[key].copy() if key in info else None
+    if done.any():
+        final = info["final_info"]
+        mask = final[f"_{key}"]
+        if value is None:
+            value = np.zeros_like(final[key])
+        value[mask] = final[key][mask]
+    return value
+
+
+def main(args: Args) -> None:
+    if args.resume:
+        path = args.resume
+        if os.path.isdir(path):
+            path = os.path.join(path, "checkpoint.pt")
+        checkpoint = torch.load(path, weights_only=True)
+        saved = Args(**json.loads(checkpoint["args"]))
+        # The run continues as it was configured; only the budget may be raised.
+        saved.total_timesteps = max(saved.total_timesteps, args.total_timesteps)
+        saved.resume = path
+        args = saved
+        run_name = os.path.basename(os.path.dirname(os.path.abspath(path)))
+    else:
+        checkpoint = None
+        run_name = f"{args.env_id.replace('/', '-')}__{args.exp_name}__{args.seed}__{int(time.time())}"
+    run_path = os.path.join(args.run_dir, run_name)
+    os.makedirs(run_path, exist_ok=True)
+    writer = SummaryWriter(run_path)
+    writer.add_text(
+        "hyperparameters",
+        "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in vars(args).items()),
+    )
+
+    random.seed(args.seed)
+    np.random.seed(args.seed)
+    torch.manual_seed(args.seed)
+    torch.backends.cudnn.deterministic = args.torch_deterministic
+    if args.torch_threads > 0:
+        torch.set_num_threads(args.torch_threads)
+    device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
+
+    # Routines: mined from the demo (or loaded), printed with action names, saved with the run.
+    if checkpoint is not None and checkpoint["library"]:
+        library = RoutineLibrary.from_dict(json.loads(checkpoint["library"]))
+    else:
+        library = load_routines(args)
+    if library is not None:
+        probe = make_primitive_env(args.env_id, **train_env_kwargs(args))
+        meanings = getattr(probe.unwrapped, "get_action_meanings", lambda: None)()
+        probe.close()
+        print(library.describe(meanings))
+        library.save(os.path.join(run_path, "routines.json"))
+
+    # Env setup: same-step autoreset, so the step that ends an episode returns the reset obs.
+    thunks = [
+        make_env(args.env_id, args.seed, i, routines=library, training=True,
+                 record_observations=args.mode == "rapl", env_kwargs=train_env_kwargs(args),
+                 capture_video=args.capture_video, run_name=run_name)
+        for i in range(args.num_envs)
+    ]
+    vector_cls = gym.vector.AsyncVectorEnv if args.async_envs else gym.vector.SyncVectorEnv
+    envs = vector_cls(thunks, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
+    assert isinstance(envs.single_action_space, gym.spaces.Discrete), "only discrete actions"
+    num_actions = int(envs.single_action_space.n)
+    num_routines = len(library) if library is not None else 0
+    num_primitives = num_actions - num_routines
+    max_len = max(library.lengths) if library is not None else 1
+
+    agent = Agent(args.env_id, envs.single_observation_space, num_actions).to(device)
+    optimizer = torch.optim.RMSprop(agent.parameters(), lr=args.learning_rate,
+                                    alpha=args.rmsprop_alpha, eps=args.rmsprop_eps)
+
+    # Rollout storage, time-major: [decision, env] and [decision, step in routine, env].
+    n, e = args.num_steps, args.num_envs
+    obs_shape = envs.single_observation_space.shape
+    obs_dtype = envs.single_observation_space.dtype
+    obs_buf = np.zeros((n, e, *obs_shape), dtype=obs_dtype)
+    actions = np.zeros((n, e), dtype=np.int64)
+    step_rewards = np.zeros((n, max_len, e), dtype=np.float64)
+    lengths = np.ones((n, e), dtype=np.int64)
+    terminated = np.zeros((n, e), dtype=bool)
+    truncated = np.zeros((n, e), dtype=bool)
+    final_values = np.zeros((n, e), dtype=np.float64)
+    inner_obs = np.zeros((n, max(max_len - 1, 1), e, *obs_shape), dtype=obs_dtype)
+
+    global_step, start_iteration = 0, 1
+    if checkpoint is not None:
+        agent.load_state_dict(checkpoint["model"])
+        optimizer.load_state_dict(checkpoint["optimizer"])
+        global_step, start_iteration = checkpoint["global_step"], checkpoint["iteration"] + 1
+        set_rng_state(checkpoint["rng"])
+        print(f"resumed {run_name} at step {global_step}")
+    checkpoint_path = os.path.join(run_path, "checkpoint.pt")
+    next_checkpoint = (global_step // args.checkpoint_every + 1) * args.checkpoint_every \
+        if args.checkpoint_every > 0 else None
+
+    # The env is reset with a seed that depends on where the run is, so a resumed run does not
+    # replay the episodes it already saw.
+    next_obs, _ = envs.reset(seed=args.seed + global_step)
+    start_time, start_step = time.time(), global_step
+    decisions, next_log = 0, (global_step // args.log_every + 1) * args.log_every
+    routine_counts = np.zeros(num_actions, dtype=np.int64)
+    recent_returns: list[float] = []
+    iteration = start_iteration - 1
+
+    while global_step < args.total_timesteps:
+        iteration += 1
+        if args.anneal_lr:
+            frac = max(1.0 - global_step / args.total_timesteps, 0.0)
+            optimizer.param_groups[0]["lr"] = frac * args.learning_rate
+
+        for step in range(n):
+            obs_buf[step] = next_obs
+            with torch.no_grad():
+                action, _, _, _ = agent.get_action_and_value(torch.as_tensor(next_obs, device=device))
+            action = action.cpu().numpy()
+            actions[step] = action
+            next_obs, reward, term, trunc, info = envs.step(action)
+            done = term | trunc
+            terminated[step], truncated[step] = term, trunc
+
+            if args.mode == "a2c":
+                lengths[step] = 1
+                step_rewards[step, 0] = reward
+            else:
+                lengths[step] = merge_final(info, "routine_length", done)
+                step_rewards[step] = merge_final(info, "routine_rewards", done).T
+                if args.mode == "rapl" and max_len > 1:
+                    inner = merge_final(info, "routine_observations", done)
+                    inner_obs[step] = np.swapaxes(inner[:, : max_len - 1], 0, 1)
+            if trunc.any():  # bootstrap a cut episode from the value of its last observation
+                final_obs = np.stack([info["final_obs"][i] for i in np.flatnonzero(trunc)])
+                with torch.no_grad():
+                    v = agent.get_value(torch.as_tensor(final_obs, device=device))
+                final_values[step, trunc] = v.cpu().numpy()
+
+            global_step += int(lengths[step].sum())
+            decisions += e
+            np.add.at(routine_counts, action, 1)
+            if done.any() and "episode" in info.get("final_info", {}):
+                final = info["final_info"]
+                for i in np.flatnonzero(final["_episode"]):
+                    ret, length = float(final["episode"]["r"][i]), int(final["episode"]["l"][i])
+                    recent_returns.append(ret)
+                    writer.add_scalar("charts/episodic_return", ret, global_step)
+                    writer.add_scalar("charts/episodic_length", length, global_step)
+
+        # Returns. RAPL: discounted routine reward and γ^ℓ; MacroAction and A2C: summed reward
+        # and one γ per decision (identical for A2C, whose routines all have length 1).
+        if args.mode == "rapl":
+            rewards, discounts = routine_reward_and_discount(step_rewards, lengths, args.gamma)
+        else:
+            rewards = (step_rewards * (np.arange(max_len)[:, None] < lengths[:, None])).sum(1)
+            discounts = np.full((n, e), args.gamma)
+        with torch.no_grad():
+            bootstrap = agent.get_value(torch.as_tensor(next_obs, device=device)).cpu().numpy()
+        returns = decision_returns(rewards, discounts, terminated, truncated, final_values,
+                                   bootstrap)
+
+        b_obs = torch.as_tensor(obs_buf.reshape(n * e, *obs_shape), device=device)
+        b_actions = torch.as_tensor(actions.reshape(-1), device=device)
+        b_returns = torch.as_tensor(returns.reshape(-1), dtype=torch.float32, device=device)
+        _, logprob, entropy, values = agent.get_action_and_value(b_obs, b_actions)
+        advantages = b_returns - values  # A_routine
+        pg_loss = -(logprob * advantages.detach()).mean()
+        v_loss = advantages.pow(2).mean()
+        entropy_loss = entropy.mean()
+
+        prim_loss = torch.zeros((), device=device)
+        if args.mode == "rapl" and max_len > 1:
+            # A_prim at the primitive states inside routines (step j ≥ 1 of a decision).
+            prim = primitive_returns(step_rewards, lengths, terminated, truncated, final_values,
+                                     bootstrap, args.gamma)
+            inside = np.arange(1, max_len)[None, :, None] < lengths[:, None, :]  # [n, L-1, e]
+            if inside.any():
+                states = torch.as_tensor(inner_obs[:, : max_len - 1][inside], device=device)
+                targets = torch.as_tensor(prim[:, 1:][inside], dtype=torch.float32,
+                                          device=device)
+                prim_loss = (targets - agent.get_value(states)).pow(2).mean()
+
+        loss = pg_loss - args.ent_coef * entropy_loss \
+            + args.vf_coef * (v_loss + args.prim_coef * prim_loss)
+        optimizer.zero_grad()
+        loss.backward()
+        nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+        optimizer.step()
+
+        elapsed = max(time.time() - start_time, 1e-9)
+        writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
+        writer.add_scalar("losses/value_loss", v_loss.item(), global_step)
+        writer.add_scalar("losses/prim_value_loss", prim_loss.item(), global_step)
+        writer.add_scalar("losses/policy_loss", pg_loss.item(), global_step)
+        writer.add_scalar("losses/entropy", entropy_loss.item(), global_step)
+        writer.add_scalar("charts/SPS", int((global_step - start_step) / elapsed), global_step)
+        writer.add_scalar("charts/decisions_per_second", int(decisions / elapsed), global_step)
+        if num_routines:
+            usage = routine_counts / max(routine_counts.sum(), 1)
+            writer.add_scalar("routines/primitive_usage", usage[:num_primitives].sum(),
+                              global_step)
+            for k in range(num_routines):
+                writer.add_scalar(f"routines/usage_{k}", usage[num_primitives + k], global_step)
+
+        if global_step >= next_log or global_step >= args.total_timesteps:
+            next_log = (global_step // args.log_every + 1) * args.log_every
+            mean_ret = f"{np.mean(recent_returns[-20:]):.1f}" if recent_returns else "n/a"
+            usage = routine_counts[num_primitives:].sum() / max(routine_counts.sum(), 1)
+            print(f"step {global_step:>10,d}/{args.total_timesteps:,d}  "
+                  f"SPS {int((global_step - start_step) / elapsed):>5d}  "
+                  f"return(last 20) {mean_ret:>8s}  episodes {len(recent_returns):>5d}  "
+                  f"routine use {usage:5.1%}", flush=True)
+        if next_checkpoint is not None and global_step >= next_checkpoint:
+            save_checkpoint(checkpoint_path, agent, optimizer, global_step, iteration, args,
+                            library)
+            next_checkpoint = (global_step // args.checkpoint_every + 1) * args.checkpoint_every
+
+    envs.close()
+    if args.checkpoint_every > 0:
+        save_checkpoint(checkpoint_path, agent, optimizer, global_step, iteration, args, library)
+    if args.save_model:
+        model_path = os.path.join(run_path, "model.pt")
+        torch.save(agent.state_dict(), model_path + ".tmp")
+        os.replace(model_path + ".tmp", model_path)
+        print(f"model saved to {model_path}")
+
+    if args.eval_episodes > 0:
+        summary = evaluate(agent, args, library, device, args.eval_episodes)
+        summary["global_step"] = global_step
+        atomic_write_text(os.path.join(run_path, "eval.json"), json.dumps(summary, indent=2))
+        writer.add_scalar("eval/mean_return", summary["mean_return"], global_step)
+        print(f"eval over {args.eval_episodes} episodes: mean return "
+              f"{summary['mean_return']:.1f} ± {summary['std_return']:.1f}")
+
+    if args.record_demo:
+        def policy(obs):
+            with torch.no_grad():
+                action, _, _, _ = agent.get_action_and_value(
+                    torch.as_tensor(np.asarray(obs)[None], device=device))
+            return int(action[0])
+
+        def wrap(env):
+            env = preprocess(gym.wrappers.RecordEpisodeStatistics(env), args.env_id,
+                             training=False)
+            if library is not None:
+                from routine_gym.wrapper import RoutineActionWrapper
+
+                env = RoutineActionWrapper(env, library, record_observations=False)
+            return env
+
+        demo = record_agent_demo(
+            args.env_id, policy, num_episodes=args.demo_episodes, seed=args.seed + 20_000,
+            env_kwargs={**default_env_kwargs(args.env_id), **train_env_kwargs(args)},
+            wrap_env=wrap,
+            meta={"trained_steps": global_step, "command": " ".join(sys.argv),
+                  "mode": args.mode, "run": run_name},
+        )
+        demo.save(args.record_demo, include_observations=False)
+        print(f"demo saved to {args.record_demo}: score {demo.score:g}, {len(demo)} steps")
+    writer.close()
+
+
+if __name__ == "__main__":
+    warnings.filterwarnings("ignore", category=DeprecationWarning)
+    routine_gym.register_envs()
+    main(tyro.cli(Args))

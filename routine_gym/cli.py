@@ -1,0 +1,281 @@
+"""The `routine-gym` command line: mine, show, replay, play and record.
+
+    routine-gym mine demos/MiniQbert-v0.npz --num-routines 3 --out routines.json
+    routine-gym show routines.json
+    routine-gym replay demos/MiniQbert-v0.npz
+    routine-gym record MiniQbert-v0 --policy expert --episodes 10 --out my_demo.npz
+    routine-gym play ALE/Qbert-v5 --out my_qbert.npz
+
+Run `routine-gym COMMAND --help` for the options of each command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import warnings
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from routine_gym.library import RoutineLibrary, routine_name
+
+
+class CLIError(Exception):
+    """A user error: printed as `routine-gym: error: ...` with exit code 2, no traceback."""
+
+
+def _load_demo(path: str):
+    from routine_gym.demo import Demo
+
+    if not Path(path).is_file():
+        raise CLIError(f"no demo file at {path}")
+    return Demo.load(path)
+
+
+def cmd_mine(args: argparse.Namespace) -> int:
+    from routine_gym.mining import make_proposer
+
+    demo = _load_demo(args.demo)
+    proposer = make_proposer(
+        args.proposer,
+        num_routines=args.num_routines,
+        length_weight=args.length_weight,
+        alpha=args.alpha,
+        seed=args.seed,
+        prune_primitives=not args.keep_near_primitives,
+    )
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        library = proposer.mine(demo, source={"path": str(args.demo)})
+    for w in caught:
+        print(f"warning: {w.message}", file=sys.stderr)
+    meta = demo.meta
+    print(
+        f"demo: {args.demo} ({meta.get('env_id', '?')}, {demo.num_episodes} episode(s), "
+        f"{len(demo.actions)} actions, score {demo.score:g})"
+    )
+    print(library.describe())
+    if args.out:
+        library.save(args.out)
+        print(f"saved to {args.out}")
+    return 0
+
+
+def cmd_show(args: argparse.Namespace) -> int:
+    path = Path(args.path)
+    if not path.is_file():
+        raise CLIError(f"no file at {path}")
+    if path.suffix == ".json":
+        library = RoutineLibrary.load(path)
+        print(library.describe())
+        if library.source:
+            print("source: " + ", ".join(f"{k}={v}" for k, v in library.source.items()
+                                         if k != "scores"))
+        return 0
+    demo = _load_demo(str(path))
+    meta = demo.meta
+    print(f"demo: {path}")
+    for key in ("env_id", "env_kwargs", "source", "created", "seeds", "scores"):
+        if key in meta:
+            print(f"  {key}: {meta[key]}")
+    print(f"  episodes: {demo.num_episodes}, actions: {len(demo.actions)}, "
+          f"observations: {'yes' if demo.observations is not None else 'no'}")
+    meanings = meta.get("action_meanings")
+    if meanings:
+        counts = np.bincount(demo.actions, minlength=len(meanings))
+        usage = ", ".join(f"{m}={c}" for m, c in zip(meanings, counts, strict=True) if c)
+        print(f"  action counts: {usage}")
+        head = demo.episode_actions()[0][: args.head]
+        print(f"  first actions: {routine_name(head.tolist(), meanings)}")
+    return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from routine_gym.demo import DemoReplayError, replay
+
+    demo = _load_demo(args.demo)
+    try:
+        result = replay(demo, episode=args.episode, check=True)
+    except DemoReplayError as exc:
+        print(f"replay FAILED: {exc}", file=sys.stderr)
+        return 1
+    for i, (score, length) in enumerate(zip(result.scores, result.lengths, strict=True)):
+        print(f"episode {i}: score {score:g}, length {length}: matches the recording")
+    return 0
+
+
+def _resolve_policy(spec: str, env) -> Callable[[Any], int]:
+    """`random`, `expert` (MiniQbert's scripted expert) or `module:function`."""
+    if spec == "random":
+        space = env.action_space
+        return lambda obs: int(space.sample())
+    if spec == "expert":
+        unwrapped = env.unwrapped
+        if type(unwrapped).__name__ != "MiniQbertEnv":
+            raise CLIError("--policy expert is MiniQbert's scripted expert; "
+                           f"{env.spec.id if env.spec else env} has none")
+        from routine_gym.envs.miniqbert import scripted_expert
+
+        return scripted_expert(unwrapped)
+    if ":" not in spec:
+        raise CLIError(f"unknown policy {spec!r}: use random, expert or module:function")
+    module_name, _, attr = spec.partition(":")
+    try:
+        policy = getattr(importlib.import_module(module_name), attr)
+    except (ImportError, AttributeError) as exc:
+        raise CLIError(f"cannot import policy {spec!r}: {exc}") from exc
+    if not callable(policy):
+        raise CLIError(f"policy {spec!r} is not callable")
+    return policy
+
+
+def cmd_record(args: argparse.Namespace) -> int:
+    import gymnasium as gym
+
+    from routine_gym.demo import record_agent_demo
+
+    from routine_gym.envs.factory import default_env_kwargs
+
+    env_kwargs = {**default_env_kwargs(args.env_id), **_parse_kwargs(args.env_kwarg)}
+    probe = gym.make(args.env_id, **env_kwargs)
+    policy = _resolve_policy(args.policy, probe)
+    probe.close()
+    demo = record_agent_demo(
+        args.env_id,
+        policy,
+        num_episodes=args.episodes,
+        seed=args.seed,
+        env_kwargs=env_kwargs,
+        keep=args.keep,
+        max_steps=args.max_steps,
+        record_observations=args.observations,
+    )
+    demo.save(args.out, include_observations=args.observations)
+    print(f"saved {demo.num_episodes} episode(s), {len(demo.actions)} actions, "
+          f"score {demo.score:g} to {args.out}")
+    return 0
+
+
+def cmd_play(args: argparse.Namespace) -> int:
+    from routine_gym.demo import record_human_demo
+
+    demo = record_human_demo(
+        args.env_id,
+        seed=args.seed,
+        fps=args.fps,
+        zoom=args.zoom,
+        env_kwargs=_parse_kwargs(args.env_kwarg),
+        num_episodes=args.episodes,
+    )
+    if len(demo.actions) == 0:
+        raise CLIError("no complete episode was played; nothing saved")
+    demo.save(args.out, include_observations=args.observations)
+    print(f"saved {demo.num_episodes} episode(s), {len(demo.actions)} actions, "
+          f"score {demo.score:g} to {args.out}")
+    return 0
+
+
+def _parse_kwargs(pairs: Sequence[str] | None) -> dict[str, Any]:
+    """`["max_episode_steps=500", "size=5"]` → `{"max_episode_steps": 500, "size": 5}`."""
+    import json
+
+    out: dict[str, Any] = {}
+    for pair in pairs or ():
+        key, sep, value = pair.partition("=")
+        if not sep or not key:
+            raise CLIError(f"--env-kwarg takes KEY=VALUE, got {pair!r}")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="routine-gym",
+        description="Mine action routines from a demonstration, inspect them, and record or "
+        "replay demonstrations.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("mine", help="mine a routine library from a demo and print it",
+                       description="Mine the top-K routines of a demo (SPEC §2) and print them "
+                       "with action names, scores and frequencies.")
+    p.add_argument("demo", help="demo file (.npz) written by routine-gym")
+    p.add_argument("--num-routines", "-k", type=int, default=3, help="K, routines to keep (3)")
+    p.add_argument("--length-weight", type=float, default=0.1,
+                   help="λ_length in the score f + λ·len (0.1)")
+    p.add_argument("--alpha", type=int, default=2,
+                   help="prune candidates within this Levenshtein distance of an accepted one (2)")
+    p.add_argument("--proposer", default="full",
+                   choices=["full", "random", "enumerate", "random-fetch", "repeat"],
+                   help="full = Sequitur (the paper's model); the others are its ablations")
+    p.add_argument("--seed", type=int, default=0, help="seed of the random ablation proposers")
+    p.add_argument("--keep-near-primitives", action="store_true",
+                   help="do not count primitives as accepted (keeps length-2 routines at α=2)")
+    p.add_argument("--out", "-o", help="save the library as JSON here")
+    p.set_defaults(func=cmd_mine)
+
+    p = sub.add_parser("show", help="print a routine library (.json) or a demo (.npz)")
+    p.add_argument("path", help="a routine library JSON or a demo .npz")
+    p.add_argument("--head", type=int, default=20, help="demo actions to print (20)")
+    p.set_defaults(func=cmd_show)
+
+    p = sub.add_parser("replay", help="replay a demo from its seed and verify it",
+                       description="Re-run the demo's actions in its env from its seed and "
+                       "check rewards, terminations and length match. Exit code 1 on mismatch.")
+    p.add_argument("demo", help="demo file (.npz)")
+    p.add_argument("--episode", type=int, default=None, help="replay only this episode")
+    p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("record", help="record an agent's demo (best of N episodes)",
+                       description="Run a policy for N episodes and save the best one.")
+    p.add_argument("env_id", help="a Gymnasium env id, e.g. MiniQbert-v0 or ALE/Qbert-v5")
+    p.add_argument("--out", "-o", required=True, help="demo file to write (.npz)")
+    p.add_argument("--policy", default="random",
+                   help="random, expert (MiniQbert's scripted expert) or module:function "
+                   "taking an observation and returning an action (random)")
+    p.add_argument("--episodes", "-n", type=int, default=10, help="episodes to run (10)")
+    p.add_argument("--keep", choices=["best", "all"], default="best",
+                   help="save the best episode or all of them (best)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the first episode (0)")
+    p.add_argument("--max-steps", type=int, default=None, help="cut episodes at this length")
+    p.add_argument("--observations", action="store_true", help="store observations too")
+    p.add_argument("--env-kwarg", action="append", metavar="KEY=VALUE",
+                   help="keyword argument for gym.make (repeatable)")
+    p.set_defaults(func=cmd_record)
+
+    p = sub.add_parser("play", help="play an env with the keyboard and save the demo",
+                       description="Human demonstration through gymnasium.utils.play. Needs a "
+                       "display. Close the window or press Escape to stop.")
+    p.add_argument("env_id", help="a Gymnasium env id with keyboard controls, e.g. ALE/Qbert-v5")
+    p.add_argument("--out", "-o", required=True, help="demo file to write (.npz)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the first episode (0)")
+    p.add_argument("--episodes", "-n", type=int, default=1, help="episodes to play (1)")
+    p.add_argument("--fps", type=int, default=None, help="frames per second (env default)")
+    p.add_argument("--zoom", type=float, default=None, help="window zoom factor")
+    p.add_argument("--observations", action="store_true", help="store observations too")
+    p.add_argument("--env-kwarg", action="append", metavar="KEY=VALUE",
+                   help="keyword argument for gym.make (repeatable)")
+    p.set_defaults(func=cmd_play)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except (CLIError, ValueError, TypeError, FileNotFoundError) as exc:
+        parser.exit(2, f"routine-gym: error: {exc}\n")
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

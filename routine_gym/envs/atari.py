@@ -1,0 +1,106 @@
+"""The standard Atari training wrappers that Gymnasium does not ship.
+
+Gymnasium has the observation side (`GrayscaleObservation`, `ResizeObservation`,
+`FrameStackObservation`, `ClipReward`); the three reset-side habits of DQN/A2C training are
+here: random no-op starts, a life loss ending the *training* episode, and pressing FIRE at the
+start of games that wait for it. Each works one agent step (one ALE frame-skip) at a time.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+__all__ = ["EpisodicLife", "FireReset", "NoopReset", "is_atari"]
+
+
+def is_atari(env_id: str) -> bool:
+    """`ALE/Qbert-v5`, `QbertNoFrameskip-v4` and the like."""
+    return env_id.startswith("ALE/") or env_id.endswith("NoFrameskip-v4")
+
+
+def _action_meanings(env: gym.Env) -> list[str]:
+    return list(env.unwrapped.get_action_meanings())
+
+
+class NoopReset(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """After a reset, take a random number (1..noop_max) of NOOP steps, for varied starts."""
+
+    def __init__(self, env: gym.Env, noop_max: int = 30) -> None:
+        if noop_max < 0:
+            raise ValueError(f"noop_max needs to be ≥ 0, actual value: {noop_max}")
+        if _action_meanings(env)[0] != "NOOP":
+            raise ValueError("NoopReset needs action 0 to be NOOP")
+        gym.utils.RecordConstructorArgs.__init__(self, noop_max=noop_max)
+        gym.Wrapper.__init__(self, env)
+        self.noop_max = noop_max
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        if self.noop_max == 0:
+            return obs, info
+        for _ in range(int(self.np_random.integers(1, self.noop_max + 1))):
+            obs, _, terminated, truncated, info = self.env.step(0)
+            if terminated or truncated:
+                obs, info = self.env.reset(options=options)
+        return obs, info
+
+
+class EpisodicLife(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """A life loss terminates the training episode; the game itself goes on until game over.
+
+    `reset` after a life loss only takes a NOOP step, so the agent sees a short episode per
+    life (it learns that dying is final) while the game, and an inner
+    `RecordEpisodeStatistics`, run to the real game over.
+    """
+
+    def __init__(self, env: gym.Env) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self)
+        gym.Wrapper.__init__(self, env)
+        self.lives = 0
+        self.game_over = True
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self.game_over = terminated or truncated
+        lives = self.env.unwrapped.ale.lives()
+        if 0 < lives < self.lives:
+            terminated = True
+        self.lives = lives
+        return obs, reward, terminated, truncated, info
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        if self.game_over or seed is not None:
+            obs, info = self.env.reset(seed=seed, options=options)
+        else:
+            obs, _, terminated, truncated, info = self.env.step(0)
+            if terminated or truncated:
+                obs, info = self.env.reset(options=options)
+        self.game_over = False
+        self.lives = self.env.unwrapped.ale.lives()
+        return obs, info
+
+
+class FireReset(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """Press FIRE after a reset, for games that wait for it before starting."""
+
+    def __init__(self, env: gym.Env) -> None:
+        if "FIRE" not in _action_meanings(env):
+            raise ValueError("FireReset needs a FIRE action")
+        gym.utils.RecordConstructorArgs.__init__(self)
+        gym.Wrapper.__init__(self, env)
+        self.fire = _action_meanings(env).index("FIRE")
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        obs, _, terminated, truncated, info = self.env.step(self.fire)
+        if terminated or truncated:
+            obs, info = self.env.reset(options=options)
+        return obs, info
+
+
+def sign_reward(reward: float) -> float:
+    """Reward clipping for training: only the sign of a game's reward is kept."""
+    return float(np.sign(reward))

@@ -1,0 +1,14 @@
+"""Build the compiled Sequitur core; all other metadata lives in pyproject.toml."""
+
+from setuptools import Extension, setup
+
+setup(
+    ext_modules=[
+        Extension(
+            "routine_gym._sequitur",
+            ["routine_gym/_sequitur.cpp"],
+            extra_compile_args=["-O2", "-std=c++17"],
+            language="c++",
+        )
+    ]
+)
