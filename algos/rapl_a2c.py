@@ -53,6 +53,7 @@ from routine_gym.envs.factory import (
 from routine_gym.library import RoutineLibrary
 from routine_gym.metrics import human_normalized_score
 from routine_gym.mining import make_proposer
+from routine_gym.networks import ObservationEncoder, layer_init
 from routine_gym.returns import decision_returns, primitive_returns, routine_reward_and_discount
 
 
@@ -71,7 +72,7 @@ class Args:
 
     # Algorithm
     env_id: str = "ALE/Qbert-v5"
-    """the id of the environment (`ALE/*-v5`, `*NoFrameskip-v4`, `procgen/CoinRun-v0`, any discrete env)"""
+    """the env id: `ALE/*-v5`, `*NoFrameskip-v4`, `procgen/CoinRun-v0` or any discrete env"""
     mode: Literal["rapl", "a2c", "macro"] = "rapl"
     """rapl: RAPL-A2C; a2c: plain A2C on primitives; macro: the MacroAction baseline"""
     total_timesteps: int = 10_000_000
@@ -142,115 +143,22 @@ class Args:
     """print a progress line every this many primitive steps"""
     run_dir: str = "runs"
     """where run folders go"""
-    torch_threads: int = 0
-    """torch CPU threads (0: torch's default)"""
-
-
-# ---------------------------------------------------------------------------------------------
-# Networks (SPEC §5): Nature CNN on Atari, IMPALA CNN on Procgen, an MLP for flat observations
-# and a small CNN for other images.
-# ---------------------------------------------------------------------------------------------
-
-
-def layer_init(layer: nn.Module, std: float = np.sqrt(2), bias_const: float = 0.0) -> nn.Module:
-    torch.nn.init.orthogonal_(layer.weight, std)
-    torch.nn.init.constant_(layer.bias, bias_const)
-    return layer
-
-
-class ResidualBlock(nn.Module):
-    def __init__(self, channels: int) -> None:
-        super().__init__()
-        self.conv0 = nn.Conv2d(channels, channels, 3, padding=1)
-        self.conv1 = nn.Conv2d(channels, channels, 3, padding=1)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return x + self.conv1(torch.relu(self.conv0(torch.relu(x))))
-
-
-class ImpalaStage(nn.Module):
-    def __init__(self, in_channels: int, out_channels: int) -> None:
-        super().__init__()
-        self.conv = nn.Conv2d(in_channels, out_channels, 3, padding=1)
-        self.pool = nn.MaxPool2d(3, stride=2, padding=1)
-        self.res0 = ResidualBlock(out_channels)
-        self.res1 = ResidualBlock(out_channels)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.res1(self.res0(self.pool(self.conv(x))))
-
-
-def image_layout(shape: tuple[int, ...]) -> tuple[int, int, int, bool]:
-    """(channels, height, width, channels_last) of an image observation."""
-    if len(shape) == 2:
-        return 1, shape[0], shape[1], False
-    if shape[-1] in (1, 3, 4) and shape[0] not in (1, 3, 4):
-        return shape[2], shape[0], shape[1], True
-    return shape[0], shape[1], shape[2], False
-
-
-def make_torso(env_id: str, obs_shape: tuple[int, ...]) -> tuple[nn.Module, int]:
-    """The feature extractor for `env_id`'s observations and its output size."""
-    if len(obs_shape) == 1:
-        return nn.Sequential(
-            layer_init(nn.Linear(obs_shape[0], 64)), nn.Tanh(),
-            layer_init(nn.Linear(64, 64)), nn.Tanh(),
-        ), 64
-    c, h, w, _ = image_layout(obs_shape)
-    if is_atari(env_id):  # Nature CNN (Mnih et al. 2015)
-        return nn.Sequential(
-            layer_init(nn.Conv2d(c, 32, 8, stride=4)), nn.ReLU(),
-            layer_init(nn.Conv2d(32, 64, 4, stride=2)), nn.ReLU(),
-            layer_init(nn.Conv2d(64, 64, 3, stride=1)), nn.ReLU(),
-            nn.Flatten(),
-            layer_init(nn.Linear(64 * 7 * 7, 512)), nn.ReLU(),
-        ), 512
-    if is_procgen(env_id):  # IMPALA CNN (Espeholt et al. 2018), as in the Procgen paper
-        stages, channels = [], c
-        for out in (16, 32, 32):
-            stages.append(ImpalaStage(channels, out))
-            channels = out
-        with torch.no_grad():
-            n = nn.Sequential(*stages)(torch.zeros(1, c, h, w)).numel()
-        return nn.Sequential(
-            *stages, nn.Flatten(), nn.ReLU(), layer_init(nn.Linear(n, 256)), nn.ReLU()
-        ), 256
-    conv = nn.Sequential(
-        layer_init(nn.Conv2d(c, 16, 3, stride=2)), nn.ReLU(),
-        layer_init(nn.Conv2d(16, 32, 3, stride=2)), nn.ReLU(),
-        nn.Flatten(),
-    )
-    with torch.no_grad():
-        n = conv(torch.zeros(1, c, h, w)).numel()
-    return nn.Sequential(conv, layer_init(nn.Linear(n, 256)), nn.ReLU()), 256
+    torch_threads: int = 1
+    """torch CPU threads (0: torch's default); 1 leaves the other core to the environments"""
 
 
 class Agent(nn.Module):
     def __init__(self, env_id: str, obs_space: gym.spaces.Box, num_actions: int) -> None:
         super().__init__()
-        self.obs_shape = tuple(obs_space.shape)
-        self.is_image = len(self.obs_shape) >= 2
-        self.channels_last = self.is_image and image_layout(self.obs_shape)[3]
-        # uint8 images are scaled to [0, 1]; flat observations go in as they are.
-        self.scale = 255.0 if obs_space.dtype == np.uint8 else 1.0
-        self.torso, features = make_torso(env_id, self.obs_shape)
-        self.actor = layer_init(nn.Linear(features, num_actions), std=0.01)
-        self.critic = layer_init(nn.Linear(features, 1), std=1.0)
-
-    def features(self, obs: torch.Tensor) -> torch.Tensor:
-        x = obs.float() / self.scale
-        if self.is_image:
-            if x.dim() == 3:  # (B, H, W) grey images
-                x = x.unsqueeze(1)
-            elif self.channels_last:
-                x = x.permute(0, 3, 1, 2)
-        return self.torso(x)
+        self.encoder = ObservationEncoder(env_id, obs_space.shape, obs_space.dtype)
+        self.actor = layer_init(nn.Linear(self.encoder.num_features, num_actions), std=0.01)
+        self.critic = layer_init(nn.Linear(self.encoder.num_features, 1), std=1.0)
 
     def get_value(self, obs: torch.Tensor) -> torch.Tensor:
-        return self.critic(self.features(obs)).squeeze(-1)
+        return self.critic(self.encoder(obs)).squeeze(-1)
 
     def get_action_and_value(self, obs: torch.Tensor, action: torch.Tensor | None = None):
-        hidden = self.features(obs)
+        hidden = self.encoder(obs)
         dist = Categorical(logits=self.actor(hidden))
         if action is None:
             action = dist.sample()
@@ -406,7 +314,8 @@ def main(args: Args) -> None:
         run_name = os.path.basename(os.path.dirname(os.path.abspath(path)))
     else:
         checkpoint = None
-        run_name = f"{args.env_id.replace('/', '-')}__{args.exp_name}__{args.seed}__{int(time.time())}"
+        env_name = args.env_id.replace("/", "-")
+        run_name = f"{env_name}__{args.exp_name}__{args.seed}__{int(time.time())}"
     run_path = os.path.join(args.run_dir, run_name)
     os.makedirs(run_path, exist_ok=True)
     writer = SummaryWriter(run_path)
@@ -496,8 +405,8 @@ def main(args: Args) -> None:
         for step in range(n):
             obs_buf[step] = next_obs
             with torch.no_grad():
-                action, _, _, _ = agent.get_action_and_value(torch.as_tensor(next_obs, device=device))
-            action = action.cpu().numpy()
+                obs_t = torch.as_tensor(next_obs, device=device)
+                action = agent.get_action_and_value(obs_t)[0].cpu().numpy()
             actions[step] = action
             next_obs, reward, term, trunc, info = envs.step(action)
             done = term | trunc

@@ -108,7 +108,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
-def _resolve_policy(spec: str, env) -> Callable[[Any], int]:
+def _resolve_policy(spec: str, env, noise: float = 0.0, seed: int = 0) -> Callable[[Any], int]:
     """`random`, `expert` (MiniQbert's scripted expert) or `module:function`."""
     if spec == "random":
         space = env.action_space
@@ -120,7 +120,7 @@ def _resolve_policy(spec: str, env) -> Callable[[Any], int]:
                            f"{env.spec.id if env.spec else env} has none")
         from routine_gym.envs.miniqbert import scripted_expert
 
-        return scripted_expert(unwrapped)
+        return scripted_expert(unwrapped, noise=noise, rng=np.random.default_rng(seed))
     if ":" not in spec:
         raise CLIError(f"unknown policy {spec!r}: use random, expert or module:function")
     module_name, _, attr = spec.partition(":")
@@ -137,12 +137,11 @@ def cmd_record(args: argparse.Namespace) -> int:
     import gymnasium as gym
 
     from routine_gym.demo import record_agent_demo
-
     from routine_gym.envs.factory import default_env_kwargs
 
     env_kwargs = {**default_env_kwargs(args.env_id), **_parse_kwargs(args.env_kwarg)}
     probe = gym.make(args.env_id, **env_kwargs)
-    policy = _resolve_policy(args.policy, probe)
+    policy = _resolve_policy(args.policy, probe, args.expert_noise, args.seed)
     probe.close()
     demo = record_agent_demo(
         args.env_id,
@@ -240,6 +239,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--policy", default="random",
                    help="random, expert (MiniQbert's scripted expert) or module:function "
                    "taking an observation and returning an action (random)")
+    p.add_argument("--expert-noise", type=float, default=0.0,
+                   help="with --policy expert: probability of a uniformly random action (0)")
     p.add_argument("--episodes", "-n", type=int, default=10, help="episodes to run (10)")
     p.add_argument("--keep", choices=["best", "all"], default="best",
                    help="save the best episode or all of them (best)")

@@ -17,8 +17,9 @@ episodes.
 step, on flat integer arrays instead of one object per symbol. Symbol values are encoded so that
 a rule can never be confused with an action: terminal `a` is stored as `2a`, a reference to rule
 `r` as `2r + 1`, and a rule's guard node as `-1`. The compiled module `routine_gym._sequitur`
-(built from `_sequitur.cpp` at install time) ports it function for function and gives the same
-grammar about fifteen times faster; `induce` uses it when it is built.
+(built from `routine_gym/_sequitur.cpp` by `pip install`) ports it function for function, with
+an explicit stack instead of recursion, and gives the same grammar about 14 times faster (a
+million actions in about 0.4 s instead of 5.5 s); `induce` uses it when it is built.
 
 Example:
     >>> from routine_gym.sequitur import induce
@@ -237,7 +238,7 @@ def _backend_module(backend: str) -> ModuleType | None:
         _warned_fallback = True
         warnings.warn(
             f"routine_gym._sequitur is not available ({_CORE_ERROR}); falling back to the "
-            "pure-Python Sequitur, about 15x slower. Build it with `pip install -e .`.",
+            "pure-Python Sequitur, about 14x slower. Build it with `pip install -e .`.",
             RuntimeWarning,
             stacklevel=3,
         )

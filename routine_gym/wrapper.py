@@ -46,7 +46,8 @@ class RoutineActionWrapper(
     (the MacroAction baseline).
 
     The step returns the last inner observation, the summed reward, the last inner step's
-    `terminated`/`truncated`, and the last inner `info` plus these keys:
+    `terminated`/`truncated`, and the last inner `info` extended (in place, as
+    `RecordEpisodeStatistics` does) with these keys:
 
     - ``routine_index`` (int): `k` for routine `k`, `-1` for a primitive action.
     - ``routine_length`` (int): the number of primitive steps executed, `1 ≤ L ≤ len(routine)`.
@@ -178,9 +179,10 @@ class RoutineActionWrapper(
     def _new_info_blocks(self) -> None:
         """Allocate the arrays the next `_BLOCK_ROWS` steps take their info rows from.
 
-        Creating four small arrays per step costs more than the rest of the step together;
-        a row of a pre-filled block is a cheaper new array, does not share memory with any
-        other step's row (so a consumer may keep or modify it), and its padding is already set.
+        Four new small arrays per step are most of the wrapper's cost; a row of a pre-filled
+        block is a cheaper new array (a view, about half the cost of `np.zeros`), its padding
+        is already in place, and it shares no memory with any other step's row, so a consumer
+        may keep or modify what it was given.
         """
         shape = (_BLOCK_ROWS, self.max_routine_length)
         self._block_actions = np.full(shape, PAD_ACTION, dtype=np.int64)
@@ -215,18 +217,7 @@ class RoutineActionWrapper(
         # A primitive goes to the inner env as the caller gave it, as it would without the wrapper.
         sequence = sequences[a] if a >= n else (action,)
 
-        env_step = self.env.step
-        rewards = []
-        observations = [] if self.record_observations else None
-        for primitive in sequence:
-            obs, reward, terminated, truncated, info = env_step(primitive)
-            rewards.append(float(reward))
-            if observations is not None:
-                observations.append(obs)
-            if terminated or truncated:
-                break
-        executed = len(rewards)
-
+        # This step's rows of the info blocks (see `_new_info_blocks`).
         row = self._block_row
         if row == _BLOCK_ROWS:
             self._new_info_blocks()
@@ -236,12 +227,29 @@ class RoutineActionWrapper(
         routine_rewards = self._block_rewards[row]
         routine_terminated = self._block_terminated[row]
         routine_truncated = self._block_truncated[row]
+
+        env_step = self.env.step
+        observations = [] if self.record_observations else None
+        total_reward = 0.0
+        executed = 0
+        for primitive in sequence:
+            obs, reward, terminated, truncated, info = env_step(primitive)
+            reward = float(reward)
+            total_reward += reward
+            routine_rewards[executed] = reward
+            executed += 1
+            if observations is not None:
+                observations.append(obs)
+            if terminated or truncated:
+                break
+
+        # The block rows hold the padding already: only the executed steps are written.
         if executed == 1:
             routine_actions[0] = sequences[a][0]
-            routine_rewards[0] = rewards[0]
         else:
-            routine_actions[:executed] = self._padded_actions[a, :executed]
-            routine_rewards[:executed] = rewards
+            routine_actions[:] = self._padded_actions[a]
+            if executed < len(sequence):
+                routine_actions[executed:] = PAD_ACTION
         if terminated:
             routine_terminated[executed - 1] = True
         if truncated:
@@ -256,7 +264,7 @@ class RoutineActionWrapper(
         info["routine_truncated"] = routine_truncated
         if observations is not None:
             info["routine_observations"] = self._stack_observations(observations)
-        return obs, sum(rewards), terminated, truncated, info
+        return obs, total_reward, terminated, truncated, info
 
     def _stack_observations(self, observations: list[Any]) -> Any:
         """The executed observations stacked and zero-padded to `max_routine_length`."""

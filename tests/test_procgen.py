@@ -91,6 +91,13 @@ def test_seeded_reset_replays_the_episode_exactly():
     assert not np.array_equal(frames_1, frames_4)
 
 
+def test_large_seeds_are_folded_into_procgens_31_bit_range():
+    env = ProcgenEnv()
+    frames, _, _ = play(env, 5, [RIGHT] * 20)
+    folded, _, _ = play(env, 2**31 + 5, [RIGHT] * 20)
+    np.testing.assert_array_equal(frames, folded)
+
+
 def test_velocity_is_not_painted_by_default():
     default, _, _ = play(ProcgenEnv(), 3, [RIGHT] * 5)
     without, _, _ = play(ProcgenEnv(paint_vel_info=False), 3, [RIGHT] * 5)

@@ -1,0 +1,115 @@
+"""Networks of SPEC §5, shared by the training scripts.
+
+Nature CNN on Atari (Mnih et al. 2015), IMPALA CNN on Procgen (Espeholt et al. 2018, as in the
+Procgen paper), a 64-64 tanh MLP for flat observations and a small CNN for other images.
+`make_torso(env_id, obs_shape)` picks one; `ObservationEncoder` adds the scaling and the
+channel order, so a script's agent is a torso plus its heads.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+import torch.nn as nn
+
+from routine_gym.envs.factory import is_atari, is_procgen
+
+__all__ = ["ObservationEncoder", "image_layout", "layer_init", "make_torso"]
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def layer_init(layer: nn.Module, std: float = np.sqrt(2), bias_const: float = 0.0) -> nn.Module:
+    torch.nn.init.orthogonal_(layer.weight, std)
+    torch.nn.init.constant_(layer.bias, bias_const)
+    return layer
+
+
+class ResidualBlock(nn.Module):
+    def __init__(self, channels: int) -> None:
+        super().__init__()
+        self.conv0 = nn.Conv2d(channels, channels, 3, padding=1)
+        self.conv1 = nn.Conv2d(channels, channels, 3, padding=1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x + self.conv1(torch.relu(self.conv0(torch.relu(x))))
+
+
+class ImpalaStage(nn.Module):
+    def __init__(self, in_channels: int, out_channels: int) -> None:
+        super().__init__()
+        self.conv = nn.Conv2d(in_channels, out_channels, 3, padding=1)
+        self.pool = nn.MaxPool2d(3, stride=2, padding=1)
+        self.res0 = ResidualBlock(out_channels)
+        self.res1 = ResidualBlock(out_channels)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.res1(self.res0(self.pool(self.conv(x))))
+
+
+def image_layout(shape: tuple[int, ...]) -> tuple[int, int, int, bool]:
+    """(channels, height, width, channels_last) of an image observation."""
+    if len(shape) == 2:
+        return 1, shape[0], shape[1], False
+    if shape[-1] in (1, 3, 4) and shape[0] not in (1, 3, 4):
+        return shape[2], shape[0], shape[1], True
+    return shape[0], shape[1], shape[2], False
+
+
+def make_torso(env_id: str, obs_shape: tuple[int, ...]) -> tuple[nn.Module, int]:
+    """The feature extractor for `env_id`'s observations and its output size."""
+    if len(obs_shape) == 1:
+        return nn.Sequential(
+            layer_init(nn.Linear(obs_shape[0], 64)), nn.Tanh(),
+            layer_init(nn.Linear(64, 64)), nn.Tanh(),
+        ), 64
+    c, h, w, _ = image_layout(obs_shape)
+    if is_atari(env_id):  # Nature CNN (Mnih et al. 2015)
+        return nn.Sequential(
+            layer_init(nn.Conv2d(c, 32, 8, stride=4)), nn.ReLU(),
+            layer_init(nn.Conv2d(32, 64, 4, stride=2)), nn.ReLU(),
+            layer_init(nn.Conv2d(64, 64, 3, stride=1)), nn.ReLU(),
+            nn.Flatten(),
+            layer_init(nn.Linear(64 * 7 * 7, 512)), nn.ReLU(),
+        ), 512
+    if is_procgen(env_id):  # IMPALA CNN (Espeholt et al. 2018), as in the Procgen paper
+        stages, channels = [], c
+        for out in (16, 32, 32):
+            stages.append(ImpalaStage(channels, out))
+            channels = out
+        with torch.no_grad():
+            n = nn.Sequential(*stages)(torch.zeros(1, c, h, w)).numel()
+        return nn.Sequential(
+            *stages, nn.Flatten(), nn.ReLU(), layer_init(nn.Linear(n, 256)), nn.ReLU()
+        ), 256
+    conv = nn.Sequential(
+        layer_init(nn.Conv2d(c, 16, 3, stride=2)), nn.ReLU(),
+        layer_init(nn.Conv2d(16, 32, 3, stride=2)), nn.ReLU(),
+        nn.Flatten(),
+    )
+    with torch.no_grad():
+        n = conv(torch.zeros(1, c, h, w)).numel()
+    return nn.Sequential(conv, layer_init(nn.Linear(n, 256)), nn.ReLU()), 256
+
+
+class ObservationEncoder(nn.Module):
+    """Observations (uint8 images or flat vectors, batched) to features, via `make_torso`."""
+
+    def __init__(self, env_id: str, obs_shape: tuple[int, ...], obs_dtype=np.uint8) -> None:
+        super().__init__()
+        self.obs_shape = tuple(obs_shape)
+        self.is_image = len(self.obs_shape) >= 2
+        self.channels_last = self.is_image and image_layout(self.obs_shape)[3]
+        # uint8 images are scaled to [0, 1]; flat observations go in as they are.
+        self.scale = 255.0 if np.dtype(obs_dtype) == np.uint8 else 1.0
+        self.torso, self.num_features = make_torso(env_id, self.obs_shape)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        x = obs.float() / self.scale
+        if self.is_image:
+            if x.dim() == 3:  # (B, H, W) grey images
+                x = x.unsqueeze(1)
+            elif self.channels_last:
+                x = x.permute(0, 3, 1, 2)
+        return self.torso(x)
