@@ -367,7 +367,6 @@ def main(args: Args) -> None:
     n, e = args.num_steps, args.num_envs
     obs_shape = envs.single_observation_space.shape
     obs_dtype = envs.single_observation_space.dtype
-    obs_buf = np.zeros((n, e, *obs_shape), dtype=obs_dtype)
     actions = np.zeros((n, e), dtype=np.int64)
     step_rewards = np.zeros((n, max_len, e), dtype=np.float64)
     lengths = np.ones((n, e), dtype=np.int64)
@@ -402,11 +401,17 @@ def main(args: Args) -> None:
             frac = max(1.0 - global_step / args.total_timesteps, 0.0)
             optimizer.param_groups[0]["lr"] = frac * args.learning_rate
 
+        # The policy does not change during a rollout, so the acting forward pass keeps its
+        # graph and the update reuses it instead of running the network over the rollout again.
+        logprobs, entropies, values = [], [], []
         for step in range(n):
-            obs_buf[step] = next_obs
-            with torch.no_grad():
-                obs_t = torch.as_tensor(next_obs, device=device)
-                action = agent.get_action_and_value(obs_t)[0].cpu().numpy()
+            action_t, logprob_t, entropy_t, value_t = agent.get_action_and_value(
+                torch.as_tensor(next_obs, device=device)
+            )
+            logprobs.append(logprob_t)
+            entropies.append(entropy_t)
+            values.append(value_t)
+            action = action_t.cpu().numpy()
             actions[step] = action
             next_obs, reward, term, trunc, info = envs.step(action)
             done = term | trunc
@@ -450,14 +455,11 @@ def main(args: Args) -> None:
         returns = decision_returns(rewards, discounts, terminated, truncated, final_values,
                                    bootstrap)
 
-        b_obs = torch.as_tensor(obs_buf.reshape(n * e, *obs_shape), device=device)
-        b_actions = torch.as_tensor(actions.reshape(-1), device=device)
-        b_returns = torch.as_tensor(returns.reshape(-1), dtype=torch.float32, device=device)
-        _, logprob, entropy, values = agent.get_action_and_value(b_obs, b_actions)
-        advantages = b_returns - values  # A_routine
-        pg_loss = -(logprob * advantages.detach()).mean()
+        b_returns = torch.as_tensor(returns, dtype=torch.float32, device=device)
+        advantages = b_returns - torch.stack(values)  # A_routine, [n, e]
+        pg_loss = -(torch.stack(logprobs) * advantages.detach()).mean()
         v_loss = advantages.pow(2).mean()
-        entropy_loss = entropy.mean()
+        entropy_loss = torch.stack(entropies).mean()
 
         prim_loss = torch.zeros((), device=device)
         if args.mode == "rapl" and max_len > 1:

@@ -24,10 +24,11 @@ LIBRARY_VERSION = 1
 
 @dataclass(frozen=True)
 class RoutineLibrary:
-    """Routines ranked best first, with the evidence that selected them.
+    """Routines with the evidence that selected them.
 
     Attributes:
-        routines: the routines, each a tuple of primitive action ids, best first.
+        routines: the routines, each a tuple of primitive action ids, in the proposer's order:
+            best first for the Sequitur miner, the full model's order for the ablations.
         scores: the score of each routine (`f + λ·len` for the Sequitur miner).
         frequencies: overlapping occurrences of each routine in the demonstration.
         occurrences: for each routine, its occurrences as `(episode, start)` pairs, where

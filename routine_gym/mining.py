@@ -226,12 +226,11 @@ def _check_params(num_routines: int, length_weight: float, alpha: int) -> None:
         raise ValueError(f"num_routines needs to be ≥ 1, actual value: {num_routines}")
     if alpha < 1:
         raise ValueError(f"alpha (the Levenshtein pruning distance) needs to be ≥ 1, got {alpha}")
-    if length_weight < 0:
-        raise ValueError(f"length_weight needs to be ≥ 0, got {length_weight}")
+    if not np.isfinite(length_weight) or length_weight < 0:
+        raise ValueError(f"length_weight needs to be a finite number ≥ 0, got {length_weight}")
 
 
 def _sort_key(score: float, routine: Routine) -> tuple[float, int, Routine]:
-    # Rounded so that f + λ·len ties exactly whatever the floating-point path.
     return (-round(score, 9), -len(routine), routine)
 
 
@@ -247,7 +246,8 @@ class _Selector:
 
     def score(self, routine: Routine) -> tuple[float, int]:
         f = self.index.count(routine)
-        return f + self.length_weight * len(routine), f
+        # Rounded so that f + λ·len ties exactly whatever the floating-point path.
+        return round(f + self.length_weight * len(routine), 9), f
 
     def near_primitive(self, routine: Routine) -> bool:
         # The Levenshtein distance from ρ to a one-action sequence [a] is |ρ| - 1 when a is in

@@ -460,6 +460,16 @@ def test_random_fetch_routines_are_slices_of_the_demo():
             assert brute_occurrences(episodes, routine)
 
 
+def test_random_fetch_can_fetch_every_slice():
+    # The full model gives (0,1,2), so RF fetches length-3 slices: there are four, three distinct.
+    demo = [0, 1, 2, 0, 1, 2]
+    fetched = {
+        make_proposer("random-fetch", num_routines=1, seed=seed).mine(demo).routines[0]
+        for seed in range(40)
+    }
+    assert fetched == {(0, 1, 2), (1, 2, 0), (2, 0, 1)}
+
+
 def test_repeat_proposer_repeats_the_most_frequent_actions():
     # Counts in SMALL: 0, 1, 2 three times each; 3, 4, 5 twice; 7 once. Ties go to the lower id.
     library = make_proposer("repeat", num_routines=2).mine(SMALL)
@@ -514,7 +524,8 @@ def test_bad_demonstrations_are_rejected(name, actions, error, match):
         ({"num_routines": 2.0}, TypeError, "num_routines must be an int, got float"),
         ({"num_routines": True}, TypeError, "num_routines must be an int, got bool"),
         ({"alpha": 0}, ValueError, "alpha .* needs to be ≥ 1, got 0"),
-        ({"length_weight": -0.1}, ValueError, "length_weight needs to be ≥ 0, got -0.1"),
+        ({"length_weight": -0.1}, ValueError, "finite number ≥ 0, got -0.1"),
+        ({"length_weight": float("nan")}, ValueError, "length_weight needs to be a finite number"),
         ({"max_length": 1}, ValueError, "max_length needs to be ≥ 2 or None, got 1"),
     ],
 )
