@@ -132,7 +132,8 @@ class Args:
     checkpoint_every: int = 0
     """save a resumable checkpoint every this many primitive steps (0: never)"""
     resume: str | None = None
-    """checkpoint file (or run folder) to resume a killed run from"""
+    """checkpoint file (or run folder) to resume a killed run from, with its saved settings
+    (a --total-timesteps other than the default raises its budget)"""
     eval_episodes: int = 10
     """episodes to evaluate the final policy on (0 disables); results in eval.json"""
     record_demo: str | None = None
@@ -181,7 +182,7 @@ def load_routines(args: Args) -> RoutineLibrary | None:
                 f"{args.routines} was mined from a demo of {library.source['env_id']}, "
                 f"not {args.env_id}"
             )
-        return library
+        return _nonempty(library, args.routines, args)
     demo_path = args.demo or shipped_demo_path(args.env_id)
     if demo_path is None:
         raise SystemExit(
@@ -196,7 +197,17 @@ def load_routines(args: Args) -> RoutineLibrary | None:
     proposer = make_proposer(
         args.proposer, args.num_routines, args.length_weight, args.alpha, seed=args.seed
     )
-    return proposer.mine(demo, source={"path": demo_path})
+    return _nonempty(proposer.mine(demo, source={"path": demo_path}), demo_path, args)
+
+
+def _nonempty(library: RoutineLibrary, where: str, args: Args) -> RoutineLibrary:
+    # Without routines the action space has nothing to add and no routine info to learn from.
+    if len(library) == 0:
+        raise SystemExit(
+            f"--mode {args.mode} found no routine in {where} (the demo may be too short or "
+            f"too varied); use --mode a2c, a longer demo, or a smaller --alpha"
+        )
+    return library
 
 
 def rng_state() -> dict:
@@ -307,8 +318,10 @@ def main(args: Args) -> None:
             path = os.path.join(path, "checkpoint.pt")
         checkpoint = torch.load(path, weights_only=True)
         saved = Args(**json.loads(checkpoint["args"]))
-        # The run continues as it was configured; only the budget may be raised.
-        saved.total_timesteps = max(saved.total_timesteps, args.total_timesteps)
+        # The run continues as it was configured; only the budget may be raised, by giving a
+        # --total-timesteps other than the default (a bare --resume keeps the saved budget).
+        if args.total_timesteps != Args.__dataclass_fields__["total_timesteps"].default:
+            saved.total_timesteps = max(saved.total_timesteps, args.total_timesteps)
         saved.resume = path
         args = saved
         run_name = os.path.basename(os.path.dirname(os.path.abspath(path)))

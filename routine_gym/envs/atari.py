@@ -22,7 +22,13 @@ def is_atari(env_id: str) -> bool:
 
 
 def _action_meanings(env: gym.Env) -> list[str]:
-    return list(env.unwrapped.get_action_meanings())
+    unwrapped = env.unwrapped
+    if not callable(getattr(unwrapped, "get_action_meanings", None)):
+        raise ValueError(
+            f"these wrappers need an env with get_action_meanings() (ALE), "
+            f"got {type(unwrapped).__name__}"
+        )
+    return list(unwrapped.get_action_meanings())
 
 
 class NoopReset(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -57,6 +63,11 @@ class EpisodicLife(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """
 
     def __init__(self, env: gym.Env) -> None:
+        if not hasattr(env.unwrapped, "ale"):
+            raise ValueError(
+                f"EpisodicLife needs an ALE env (it reads ale.lives()), "
+                f"got {type(env.unwrapped).__name__}"
+            )
         gym.utils.RecordConstructorArgs.__init__(self)
         gym.Wrapper.__init__(self, env)
         self.lives = 0

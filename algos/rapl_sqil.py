@@ -1,0 +1,376 @@
+"""RAPL-SQIL and plain SQIL in one CleanRL-style file (SPEC §5).
+
+    python algos/rapl_sqil.py --env-id ALE/Qbert-v5                    # RAPL-SQIL, shipped demo
+    python algos/rapl_sqil.py --env-id ALE/Qbert-v5 --num-routines 0   # plain SQIL
+    python algos/rapl_sqil.py --env-id CartPole-v1 --demo demo.npz     # any discrete env
+
+Soft Q-learning with SQIL rewards (Reddy et al. 2020) over the routine-augmented action space
+`Discrete(n + K)`. Demo transitions get reward 1 per primitive step, the agent's own get 0:
+
+    D_demo = D_prim ∪ D_routine      D_prim: (s_t, a_t, s_{t+1}) of every demo step
+                                     D_routine: (s_t, n+k, s_{t+|ρ_k|}) per occurrence of ρ_k
+    y = R_sq + Γ · α log Σ_a' exp(Q_target(s', a')/α)      (no bootstrap after termination)
+    R_sq = Σ_{τ=1}^{ℓ} γ^{τ-1} r   (r = 1 demo, 0 agent),   Γ = γ^ℓ
+    L = mean_demo (Q(s,a) − y)² + λ_sample · mean_agent (Q(s,a) − y)²
+
+ℓ is the primitive length of a transition: 1 for a primitive action, |ρ| for a demo routine
+occurrence, the executed length (`info["routine_length"]`) for an agent decision. Each batch is
+half demo, half agent transitions; the agent explores with the soft-Q policy π ∝ exp(Q/α).
+The target network is a copy of the Q-network refreshed every `--target-network-frequency`
+gradient updates (`--tau 1`, as DQN) or moved towards it by Polyak averaging (`--tau < 1`).
+Gradient updates follow primitive steps (one per `--train-frequency` steps), so SQIL and
+RAPL-SQIL get the same number of updates for the same budget of env steps.
+
+The agent's replay memory (`routine_gym.imitation.FrameReplayMemory`) stores each Atari frame
+once and rebuilds the 4-frame stacks by index. Logged steps (`global_step`, `charts/SPS`) count
+primitive env steps. After training the policy is evaluated by `evaluate_imitation`: score and
+alignment of its primitive actions with the demo's, in `eval.json`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import time
+import warnings
+from dataclasses import asdict, dataclass
+from typing import Literal
+
+import gymnasium as gym
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+import tyro
+from torch.distributions.categorical import Categorical
+from torch.utils.tensorboard import SummaryWriter
+
+import routine_gym
+from routine_gym.envs.factory import is_atari, make_env
+from routine_gym.imitation import (
+    FrameReplayMemory,
+    agent_view_states,
+    build_demo_transitions,
+    check_demo_env,
+    evaluate_imitation,
+    load_demo,
+    load_routine_library,
+    save_evaluation,
+    sqil_target,
+)
+from routine_gym.library import RoutineLibrary
+from routine_gym.networks import ObservationEncoder, layer_init
+
+
+@dataclass
+class Args:
+    exp_name: str = os.path.basename(__file__)[: -len(".py")]
+    """the name of this experiment"""
+    seed: int = 1
+    """seed of the experiment"""
+    torch_deterministic: bool = True
+    """if toggled, `torch.backends.cudnn.deterministic=True`"""
+    cuda: bool = False
+    """if toggled, use CUDA when available (the CPU is the default)"""
+
+    # Algorithm
+    env_id: str = "ALE/Qbert-v5"
+    """the env id: `ALE/*-v5`, `procgen/CoinRun-v0`, `MiniQbert-v0` or any discrete env"""
+    demo: str | None = None
+    """the demo to imitate (default: the shipped demo of the env in demos/)"""
+    total_timesteps: int = 1_000_000
+    """total primitive env steps of the experiment"""
+    learning_rate: float = 1e-3
+    """the learning rate of the Adam optimizer"""
+    buffer_size: int = 100_000
+    """capacity of the agent's replay memory, in decisions (Atari: 84×84 B per decision)"""
+    gamma: float = 0.99
+    """the discount factor γ per primitive step"""
+    temperature: float = 1.0
+    """α, the soft-Q temperature of the target and of the Boltzmann exploration"""
+    tau: float = 1.0
+    """target network update rate: 1 copies the Q-network, < 1 is Polyak averaging"""
+    target_network_frequency: int = 500
+    """gradient updates between target network updates"""
+    batch_size: int = 32
+    """transitions per gradient update, half from the demo and half from the agent"""
+    lambda_sample: float = 1.0
+    """weight λ_sample of the agent transitions' loss"""
+    learning_starts: int = 1_000
+    """primitive env steps before learning starts"""
+    train_frequency: int = 4
+    """primitive env steps per gradient update"""
+
+    # Routines
+    num_routines: int = 3
+    """K, the number of routines (0: plain SQIL on the primitive actions)"""
+    routines: str | None = None
+    """a routine library JSON to use (its best K) instead of mining the demo"""
+    length_weight: float = 0.1
+    """λ_length in the routine score f + λ·len"""
+    alpha: int = 2
+    """Levenshtein distance under which similar routines are pruned"""
+    proposer: Literal["full", "random", "enumerate", "random-fetch", "repeat"] = "full"
+    """full: Sequitur (the paper's model); the others are the discovery ablations"""
+
+    # Running it
+    eval_episodes: int = 100
+    """episodes to evaluate the final policy on (0 disables); results in eval.json"""
+    eval_greedy: bool = False
+    """evaluate the greedy policy argmax Q instead of the soft-Q policy π ∝ exp(Q/α)"""
+    eval_max_steps: int | None = None
+    """cap on the primitive steps of an evaluation episode (default: the env's own limit)"""
+    save_model: bool = False
+    """save the final model to runs/{run_name}/model.pt"""
+    checkpoint_every: int = 0
+    """save a resumable checkpoint every this many primitive steps (0: never)"""
+    resume: str | None = None
+    """checkpoint file (or run folder) to resume a killed run from (the replay memory refills)"""
+    log_every: int = 10_000
+    """print a progress line every this many primitive steps"""
+    run_dir: str = "runs"
+    """where run folders go"""
+    torch_threads: int = 1
+    """torch CPU threads (0: torch's default); 1 leaves the other core to the environment"""
+
+
+class QNetwork(nn.Module):
+    def __init__(self, env_id: str, obs_space: gym.spaces.Box, num_actions: int) -> None:
+        super().__init__()
+        self.encoder = ObservationEncoder(env_id, obs_space.shape, obs_space.dtype)
+        self.head = layer_init(nn.Linear(self.encoder.num_features, num_actions), std=1.0)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.head(self.encoder(obs))
+
+
+def save_checkpoint(path: str, q_network: QNetwork, target_network: QNetwork, optimizer,
+                    global_step: int, updates: int, args: Args,
+                    library: RoutineLibrary | None) -> None:
+    """Write a resumable checkpoint atomically (a kill mid-write keeps the previous one)."""
+    torch.save(
+        {
+            "model": q_network.state_dict(),
+            "target": target_network.state_dict(),
+            "optimizer": optimizer.state_dict(),
+            "global_step": global_step,
+            "updates": updates,
+            "torch_rng": torch.get_rng_state(),
+            "args": json.dumps(asdict(args)),
+            "library": json.dumps(library.to_dict()) if library is not None else "",
+        },
+        path + ".tmp",
+    )
+    os.replace(path + ".tmp", path)
+
+
+def main(args: Args) -> dict | None:
+    if args.resume:
+        path = os.path.join(args.resume, "checkpoint.pt") if os.path.isdir(args.resume) \
+            else args.resume
+        checkpoint = torch.load(path, weights_only=True)
+        saved = Args(**json.loads(checkpoint["args"]))
+        # The run continues as it was configured; only the budget may be raised.
+        saved.total_timesteps = max(saved.total_timesteps, args.total_timesteps)
+        saved.resume = path
+        args = saved
+        run_name = os.path.basename(os.path.dirname(os.path.abspath(path)))
+    else:
+        checkpoint = None
+        env_name = args.env_id.replace("/", "-")
+        run_name = f"{env_name}__{args.exp_name}__{args.seed}__{int(time.time())}"
+    run_path = os.path.join(args.run_dir, run_name)
+    os.makedirs(run_path, exist_ok=True)
+    writer = SummaryWriter(run_path)
+    writer.add_text(
+        "hyperparameters",
+        "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in vars(args).items()),
+    )
+
+    random.seed(args.seed)
+    np.random.seed(args.seed)
+    torch.manual_seed(args.seed)
+    rng = np.random.default_rng(args.seed)
+    torch.backends.cudnn.deterministic = args.torch_deterministic
+    if args.torch_threads > 0:
+        torch.set_num_threads(args.torch_threads)
+    device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
+
+    # The demo, its routines, and the demo buffer D_prim ∪ D_routine in the agent's view.
+    demo, args.demo = load_demo(args.env_id, args.demo)
+    num_primitives = check_demo_env(demo, args.env_id)
+    if checkpoint is not None and checkpoint["library"]:
+        library = RoutineLibrary.from_dict(json.loads(checkpoint["library"]))
+    else:
+        library = load_routine_library(
+            demo, args.env_id, args.num_routines, routines_path=args.routines,
+            proposer=args.proposer, length_weight=args.length_weight, alpha=args.alpha,
+            seed=args.seed, source={"path": args.demo},
+        )
+    if library is not None:
+        print(library.describe(demo.action_meanings))
+        library.save(os.path.join(run_path, "routines.json"))
+    demo_buffer = build_demo_transitions(
+        demo, agent_view_states(demo, args.env_id), args.gamma, library, num_primitives
+    )
+    print(f"demo {args.demo}: score {demo.score:g}, {len(demo)} steps; demo buffer "
+          f"{int((~demo_buffer.is_routine).sum())} primitive + "
+          f"{int(demo_buffer.is_routine.sum())} routine transitions", flush=True)
+
+    # The agent acts in the env the demo was recorded in (its gym.make keyword arguments).
+    env = make_env(args.env_id, args.seed, 0, routines=library, training=True,
+                   env_kwargs=demo.env_kwargs)()
+    obs_space = env.observation_space
+    if obs_space.shape != demo_buffer.states.shape[1:]:
+        raise ValueError(f"demo states {demo_buffer.states.shape[1:]} do not match the env's "
+                         f"observations {obs_space.shape}")
+    num_actions = int(env.action_space.n)
+
+    q_network = QNetwork(args.env_id, obs_space, num_actions).to(device)
+    target_network = QNetwork(args.env_id, obs_space, num_actions).to(device)
+    target_network.load_state_dict(q_network.state_dict())
+    optimizer = torch.optim.Adam(q_network.parameters(), lr=args.learning_rate)
+    memory = FrameReplayMemory(args.buffer_size, obs_space.shape, obs_space.dtype,
+                               frame_stack=4 if is_atari(args.env_id) else 1)
+    half = args.batch_size // 2
+
+    global_step, updates = 0, 0
+    if checkpoint is not None:
+        q_network.load_state_dict(checkpoint["model"])
+        target_network.load_state_dict(checkpoint["target"])
+        optimizer.load_state_dict(checkpoint["optimizer"])
+        global_step, updates = checkpoint["global_step"], checkpoint["updates"]
+        torch.set_rng_state(checkpoint["torch_rng"])
+        print(f"resumed {run_name} at step {global_step}")
+    checkpoint_path = os.path.join(run_path, "checkpoint.pt")
+    next_checkpoint = (global_step // args.checkpoint_every + 1) * args.checkpoint_every \
+        if args.checkpoint_every > 0 else None
+    learning_starts = global_step + args.learning_starts  # a resumed run refills its memory first
+    session_updates = 0  # updates of this process (a resumed run also counts the earlier ones)
+
+    obs, _ = env.reset(seed=args.seed + global_step)
+    memory.start_episode(obs)
+    start_time, start_step = time.time(), global_step
+    next_log = (global_step // args.log_every + 1) * args.log_every
+    action_counts = np.zeros(num_actions, dtype=np.int64)
+    recent_returns: list[float] = []
+
+    while global_step < args.total_timesteps:
+        # Boltzmann exploration with the soft-Q policy π(a|s) ∝ exp(Q(s, a)/α).
+        with torch.no_grad():
+            q = q_network(torch.as_tensor(np.asarray(obs)[None], device=device))
+            action = int(Categorical(logits=q[0] / args.temperature).sample())
+        next_obs, _, terminated, truncated, info = env.step(action)
+        length = int(info.get("routine_length", 1))
+        memory.add(action, length, terminated, next_obs)  # SQIL ignores the env's reward
+        global_step += length
+        action_counts[action] += 1
+        if "episode" in info:  # the real game ended (not only a life, in training mode)
+            ret = float(info["episode"]["r"])
+            recent_returns.append(ret)
+            writer.add_scalar("charts/episodic_return", ret, global_step)
+            writer.add_scalar("charts/episodic_length", int(info["episode"]["l"]), global_step)
+        if terminated or truncated:
+            obs, _ = env.reset()
+            memory.start_episode(obs)
+        else:
+            obs = next_obs
+
+        # Gradient updates: one per train_frequency primitive steps after learning_starts.
+        due = (global_step - learning_starts) // args.train_frequency + 1
+        while global_step >= learning_starts and len(memory) > 0 and session_updates < due:
+            d = demo_buffer.sample(half, rng)
+            a = memory.sample(args.batch_size - half, rng)
+            agent_rewards = np.zeros(len(a["actions"]))  # r = 0 for the agent: R_sq = 0
+            batch = {
+                "obs": np.concatenate([d["obs"], a["obs"]]),
+                "actions": np.concatenate([d["actions"], a["actions"]]),
+                "rewards": np.concatenate([d["rewards"], agent_rewards]),
+                "discounts": np.concatenate([d["discounts"], args.gamma ** a["lengths"]]),
+                "next_obs": np.concatenate([d["next_obs"], a["next_obs"]]),
+                "terminated": np.concatenate([d["terminated"], a["terminated"]]),
+            }
+            b = {k: torch.as_tensor(v, device=device) for k, v in batch.items()}
+            with torch.no_grad():
+                target = sqil_target(b["rewards"].float(), b["discounts"].float(),
+                                     b["terminated"], target_network(b["next_obs"]),
+                                     args.temperature)
+            q_values = q_network(b["obs"]).gather(1, b["actions"][:, None]).squeeze(1)
+            td = (q_values - target).pow(2)
+            demo_loss, agent_loss = td[:half].mean(), td[half:].mean()
+            loss = demo_loss + args.lambda_sample * agent_loss
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+            updates += 1
+            session_updates += 1
+
+            if updates % args.target_network_frequency == 0:
+                for target_param, param in zip(target_network.parameters(),
+                                               q_network.parameters(), strict=True):
+                    target_param.data.copy_(args.tau * param.data
+                                            + (1.0 - args.tau) * target_param.data)
+            if updates % 100 == 0:
+                writer.add_scalar("losses/td_loss", loss.item(), global_step)
+                writer.add_scalar("losses/demo_loss", demo_loss.item(), global_step)
+                writer.add_scalar("losses/agent_loss", agent_loss.item(), global_step)
+                writer.add_scalar("losses/demo_q_values", q_values[:half].mean().item(),
+                                  global_step)
+                writer.add_scalar("losses/agent_q_values", q_values[half:].mean().item(),
+                                  global_step)
+                elapsed = max(time.time() - start_time, 1e-9)
+                writer.add_scalar("charts/SPS", int((global_step - start_step) / elapsed),
+                                  global_step)
+                usage = action_counts / max(action_counts.sum(), 1)
+                for k in range(num_actions - num_primitives):
+                    writer.add_scalar(f"routines/usage_{k}", usage[num_primitives + k],
+                                      global_step)
+
+        if global_step >= next_log or global_step >= args.total_timesteps:
+            next_log = (global_step // args.log_every + 1) * args.log_every
+            elapsed = max(time.time() - start_time, 1e-9)
+            mean_ret = f"{np.mean(recent_returns[-20:]):.1f}" if recent_returns else "n/a"
+            usage = action_counts[num_primitives:].sum() / max(action_counts.sum(), 1)
+            print(f"step {global_step:>10,d}/{args.total_timesteps:,d}  "
+                  f"SPS {int((global_step - start_step) / elapsed):>5d}  "
+                  f"return(last 20) {mean_ret:>8s}  episodes {len(recent_returns):>5d}  "
+                  f"updates {updates:>7d}  routine use {usage:5.1%}", flush=True)
+        if next_checkpoint is not None and global_step >= next_checkpoint:
+            save_checkpoint(checkpoint_path, q_network, target_network, optimizer, global_step,
+                            updates, args, library)
+            next_checkpoint = (global_step // args.checkpoint_every + 1) * args.checkpoint_every
+
+    env.close()
+    if args.checkpoint_every > 0:
+        save_checkpoint(checkpoint_path, q_network, target_network, optimizer, global_step,
+                        updates, args, library)
+    if args.save_model:
+        model_path = os.path.join(run_path, "model.pt")
+        torch.save(q_network.state_dict(), model_path + ".tmp")
+        os.replace(model_path + ".tmp", model_path)
+        print(f"model saved to {model_path}")
+
+    summary = None
+    if args.eval_episodes > 0:
+        def policy(observation: np.ndarray) -> int:
+            with torch.no_grad():
+                q = q_network(torch.as_tensor(np.asarray(observation)[None], device=device))[0]
+            if args.eval_greedy:
+                return int(q.argmax())
+            return int(torch.multinomial(F.softmax(q / args.temperature, dim=-1), 1))
+
+        summary = evaluate_imitation(args.env_id, policy, demo, args.eval_episodes,
+                                     seed=args.seed + 10_000, routines=library,
+                                     max_steps=args.eval_max_steps)
+        summary.update(method="rapl-sqil" if library is not None else "sqil",
+                       global_step=global_step, num_routines=len(library or ()))
+        save_evaluation(summary, run_path, writer, global_step)
+    writer.close()
+    return summary
+
+
+if __name__ == "__main__":
+    warnings.filterwarnings("ignore", category=DeprecationWarning)
+    routine_gym.register_envs()
+    main(tyro.cli(Args))
