@@ -328,7 +328,7 @@ def main(argv: list[str] | None = None) -> None:
                         help="input kinds (see the module docstring)")
     parser.add_argument("--repeats", type=int, default=3,
                         help="runs per measurement (the best is kept)")
-    parser.add_argument("--slow-repeats", type=int, default=1,
+    parser.add_argument("--slow-repeats", type=int, default=2,
                         help="runs of the pure-Python grammars above 100k actions")
     parser.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "mining.md",
                         help="markdown file to write")

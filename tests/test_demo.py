@@ -723,3 +723,27 @@ def test_human_demo_keeps_an_episode_cut_short_by_escape(scripted_keyboard):
 def test_human_demo_needs_a_key_map_for_envs_without_one():
     with pytest.raises(ValueError, match="CartPole-v1 has no default keyboard mapping"):
         record_human_demo("CartPole-v1")
+
+
+def test_qbert_demo_saves_loads_replays_and_mines(tmp_path):
+    """The issue's end-to-end check: an ALE/Qbert-v5 demo through the whole pipeline."""
+    from routine_gym.envs.factory import default_env_kwargs
+    from routine_gym.mining import SequiturMiner
+
+    rng = np.random.default_rng(3)
+    # A jumpy random player: Qbert's four moves, mostly repeated, so routines recur.
+    moves = [2, 3, 4, 5]
+    demo = record_agent_demo(
+        "ALE/Qbert-v5", lambda obs: moves[int(rng.integers(4))] if rng.random() < 0.3 else 3,
+        num_episodes=2, seed=11, max_steps=400, env_kwargs=default_env_kwargs("ALE/Qbert-v5"),
+        progress=False,
+    )
+    path = tmp_path / "qbert.npz"
+    demo.save(path, include_observations=False)
+    loaded = Demo.load(path, env_id="ALE/Qbert-v5")
+    assert loaded.actions.tolist() == demo.actions.tolist()
+    assert replay(loaded).scores.tolist() == demo.scores.tolist()
+    library = SequiturMiner().mine(loaded)
+    assert len(library) == 3
+    assert library.source["env_id"] == "ALE/Qbert-v5"
+    assert "RIGHT" in library.describe()

@@ -440,3 +440,11 @@ def test_check_env_passes_on_ale_qbert():
     env = RoutineActionWrapper(gym.make("ALE/Qbert-v5"), [[2, 2, 3], [5, 4]])
     check_wrapped_env(env, skip_render_check=True)
     env.close()
+
+
+def test_check_env_passes_on_coinrun():
+    # LEFT, DOWN, UP, RIGHT, NOOP: "jump right twice" and "run left".
+    env = RoutineActionWrapper(gym.make("procgen/CoinRun-v0"), [[2, 3, 3], [0, 0, 0]])
+    check_wrapped_env(env, skip_render_check=True)
+    assert env.action_space == gym.spaces.Discrete(7)
+    env.close()
