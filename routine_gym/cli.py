@@ -103,6 +103,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     except DemoReplayError as exc:
         print(f"replay FAILED: {exc}", file=sys.stderr)
         return 1
+    except IndexError as exc:  # --episode out of range
+        raise CLIError(str(exc)) from exc
     for i, (score, length) in enumerate(zip(result.scores, result.lengths, strict=True)):
         print(f"episode {i}: score {score:g}, length {length}: matches the recording")
     return 0
@@ -162,14 +164,17 @@ def cmd_record(args: argparse.Namespace) -> int:
 def cmd_play(args: argparse.Namespace) -> int:
     from routine_gym.demo import record_human_demo
 
-    demo = record_human_demo(
-        args.env_id,
-        seed=args.seed,
-        fps=args.fps,
-        zoom=args.zoom,
-        env_kwargs=_parse_kwargs(args.env_kwarg),
-        num_episodes=args.episodes,
-    )
+    try:
+        demo = record_human_demo(
+            args.env_id,
+            seed=args.seed,
+            fps=args.fps,
+            zoom=args.zoom,
+            env_kwargs=_parse_kwargs(args.env_kwarg),
+            num_episodes=args.episodes,
+        )
+    except RuntimeError as exc:  # nothing played, or pygame (its error is a RuntimeError)
+        raise CLIError(f"no demo recorded: {exc}") from exc
     if len(demo.actions) == 0:
         raise CLIError("no complete episode was played; nothing saved")
     demo.save(args.out, include_observations=args.observations)
@@ -274,6 +279,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return args.func(args)
     except (CLIError, ValueError, TypeError, FileNotFoundError) as exc:
         parser.exit(2, f"routine-gym: error: {exc}\n")
+    except Exception as exc:
+        # gymnasium's own errors (an unknown env id, ...) are user errors too; if gymnasium was
+        # never imported, the exception cannot be one of them.
+        gym_error = sys.modules.get("gymnasium.error")
+        if gym_error is not None and isinstance(exc, gym_error.Error):
+            parser.exit(2, f"routine-gym: error: {exc}\n")
+        raise
     except KeyboardInterrupt:
         return 130
 

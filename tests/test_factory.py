@@ -181,13 +181,14 @@ def test_episodic_life_reset_with_a_seed_always_starts_a_new_game():
 @pytest.mark.slow
 def test_noop_reset_takes_between_one_and_noop_max_noops_seeded():
     frames = []
+    env = NoopReset(make_primitive_env(QBERT), noop_max=30)
     for seed in range(6):
-        env = NoopReset(make_primitive_env(QBERT), noop_max=30)
         env.reset(seed=seed)
         frames.append(episode_frames(env))
+    for seed in range(6):
         env.reset(seed=seed)
-        assert episode_frames(env) == frames[-1]  # the same seed, the same start
-        env.close()
+        assert episode_frames(env) == frames[seed]  # the same seed, the same start
+    env.close()
     # Every no-op is one 4-frame agent step: 1..30 of them.
     assert all(f % 4 == 0 and 4 <= f <= 120 for f in frames), frames
     assert len(set(frames)) > 1, f"no variety in the starts: {frames}"

@@ -1,0 +1,316 @@
+"""Benchmark: `RoutineActionWrapper`'s overhead per primitive step against Gymnasium's
+`RepeatAction` and the bare env (SPEC §7: no larger than one of Gymnasium's own light wrappers).
+
+Every variant runs the same primitive actions (action 0 throughout) on its own instance of the
+same env, reset with the same seed, so the envs go through the same states and resets:
+
+- ``bare``: `env.step(0)`, one primitive step per call;
+- ``RepeatAction``: `RepeatAction(env, num_repeats=L).step(0)`, L primitive steps per call;
+- ``routine``: `RoutineActionWrapper(env, [[0] * L]).step(n)`, the routine, L primitive steps
+  per call, with `record_observations` False and True;
+- ``primitive``: the same wrapper's `step(0)`, one primitive step per call, with
+  `record_observations` False and True.
+
+Time per primitive step = loop time / primitive steps executed (the env's `step` is counted,
+so routines and repeats cut short by the end of an episode are counted right; resets happen
+in the loop at the same points for every variant). Overhead = wrapped − bare per primitive
+step; ratio = the wrapper's overhead / `RepeatAction`'s at the same L (one-step calls: against
+`RepeatAction(env, 1)`). Target: ratio ≤ 1.5. Timing uses `time.perf_counter_ns` with the
+garbage collector off; each figure is the best of several repeats, the variants measured in
+turn within each repeat, so a burst of load on the machine hits all of them alike.
+
+Envs (`--envs`): ``constant``, a tiny env whose step returns constants, so the wrapper's own
+cost is all there is to see; ``cartpole``, `gym.make("CartPole-v1")`; ``qbert``,
+`gym.make("ALE/Qbert-v5")`, where the overhead's share of a real step shows.
+
+Usage:
+    python bench/bench_wrapper.py
+    python bench/bench_wrapper.py --steps 200000 --repeats 5 --out bench/results/wrapper.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import gc
+import os
+import platform
+import shlex
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import ale_py
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.wrappers import RepeatAction
+
+import routine_gym
+from routine_gym.atomic import atomic_write_text
+from routine_gym.wrapper import RoutineActionWrapper
+
+REPO = Path(__file__).resolve().parents[1]
+#: The SPEC §7 target: the wrapper's overhead over RepeatAction's.
+TARGET_RATIO = 1.5
+LENGTHS = (1, 3, 5, 10)
+ENVS = ("constant", "cartpole", "qbert")
+
+
+class ConstantEnv(gym.Env):
+    """An env whose step costs almost nothing: constant observation and reward, never ends.
+
+    It counts its steps itself (`steps`), which every variant pays alike.
+    """
+
+    def __init__(self) -> None:
+        self.action_space = spaces.Discrete(4)
+        self.observation_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
+        self._obs = np.zeros(4, dtype=np.float32)
+        self.steps = 0
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """Return the constant observation."""
+        super().reset(seed=seed)
+        return self._obs, {}
+
+    def step(self, action: int):
+        """Return the constant observation, reward 1, never terminated or truncated."""
+        self.steps += 1
+        return self._obs, 1.0, False, False, {}
+
+
+def make_env(name: str) -> tuple[gym.Env, Callable[[], int]]:
+    """A fresh env `name`, and a function giving how many primitive steps it has executed."""
+    if name == "constant":
+        env = ConstantEnv()
+        return env, lambda: env.steps
+    env = gym.make({"cartpole": "CartPole-v1", "qbert": "ALE/Qbert-v5"}[name])
+    # Count on the innermost env: an instance attribute shadows the method for the wrappers
+    # above it; the extra call costs every variant the same.
+    base = env.unwrapped
+    inner_step = base.step
+    counter = [0]
+
+    def counting_step(action):
+        counter[0] += 1
+        return inner_step(action)
+
+    base.step = counting_step
+    return env, lambda: counter[0]
+
+
+@dataclass
+class Variant:
+    """One way to step the env: a (wrapped) env, the action it is given, steps per call."""
+
+    label: str
+    length: int  # L: 1 for bare and primitive
+    env: gym.Env
+    action: int
+    steps_per_call: int
+    executed: Callable[[], int]
+    best_ns: float = float("inf")
+
+
+def make_variants(name: str) -> list[Variant]:
+    """Every variant of the module docstring for env `name`, each on its own env."""
+    variants = []
+    env, executed = make_env(name)
+    variants.append(Variant("bare", 1, env, 0, 1, executed))
+    for length in LENGTHS:
+        env, executed = make_env(name)
+        variants.append(Variant("RepeatAction", length, RepeatAction(env, length), 0, length,
+                                executed))
+        for record in (False, True):
+            env, executed = make_env(name)
+            wrapped = RoutineActionWrapper(env, [[0] * length], record_observations=record)
+            n = wrapped.num_primitive_actions
+            variants.append(Variant(f"routine obs={'on' if record else 'off'}", length, wrapped,
+                                    n, length, executed))
+    for record in (False, True):
+        env, executed = make_env(name)
+        # Routines of the longest length, so the info arrays have their largest size.
+        wrapped = RoutineActionWrapper(env, [[0] * max(LENGTHS)], record_observations=record)
+        variants.append(Variant(f"primitive obs={'on' if record else 'off'}", 1, wrapped, 0, 1,
+                                executed))
+    return variants
+
+
+def time_per_step(variant: Variant, primitive_steps: int) -> float:
+    """Nanoseconds per executed primitive step over about `primitive_steps` of them."""
+    env, action = variant.env, variant.action
+    env.reset(seed=0)
+    step, reset = env.step, env.reset
+    calls = max(primitive_steps // variant.steps_per_call, 1)
+    before = variant.executed()
+    gc.collect()
+    gc.disable()
+    try:
+        start = time.perf_counter_ns()
+        for _ in range(calls):
+            _, _, terminated, truncated, _ = step(action)
+            if terminated or truncated:
+                reset()
+        elapsed = time.perf_counter_ns() - start
+    finally:
+        gc.enable()
+    return elapsed / (variant.executed() - before)
+
+
+def measure(name: str, primitive_steps: int, repeats: int) -> tuple[list[Variant], str]:
+    """Best time per primitive step of every variant of env `name`, and the load it ran under."""
+    variants = make_variants(name)
+    load_before = load_average()
+    for _ in range(repeats):
+        for variant in variants:
+            variant.best_ns = min(variant.best_ns, time_per_step(variant, primitive_steps))
+    for variant in variants:
+        variant.env.close()
+    return variants, f"{load_before} → {load_average()}"
+
+
+def render_env(name: str, variants: list[Variant], steps: int, load: str) -> list[str]:
+    """The two tables of one env: times per step, then overheads and ratios."""
+    bare = variants[0].best_ns
+    by_key = {(v.label, v.length): v.best_ns for v in variants}
+
+    def overhead(label: str, length: int) -> float:
+        return by_key[(label, length)] - bare
+
+    lines = [
+        f"### {name}",
+        "",
+        f"{steps:,} primitive steps per measurement; load (1/5/15 min) {load}.",
+        "",
+        "Time per primitive step (ns):",
+        "",
+        "| L | bare | RepeatAction | routine obs=off | routine obs=on |",
+        "|---:|---:|---:|---:|---:|",
+    ]
+    for length in LENGTHS:
+        lines.append(
+            f"| {length} | {bare:,.0f} | {by_key[('RepeatAction', length)]:,.0f} "
+            f"| {by_key[('routine obs=off', length)]:,.0f} "
+            f"| {by_key[('routine obs=on', length)]:,.0f} |"
+        )
+    lines += [
+        "",
+        f"Primitive action through the wrapper (routines of length {max(LENGTHS)} present): "
+        f"obs=off {by_key[('primitive obs=off', 1)]:,.0f} ns, "
+        f"obs=on {by_key[('primitive obs=on', 1)]:,.0f} ns per step (bare {bare:,.0f} ns).",
+        "",
+        "Overhead per primitive step (ns) and ratio to RepeatAction's overhead "
+        f"(target ≤ {TARGET_RATIO}):",
+        "",
+        "| call | L | RepeatAction overhead | wrapper overhead obs=off | ratio "
+        "| wrapper overhead obs=on | ratio | overhead / bare step (obs=off, on) |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+
+    def row(call: str, label: str, length: int, reference: float) -> str:
+        off = overhead(f"{label} obs=off", length)
+        on = overhead(f"{label} obs=on", length)
+        return (
+            f"| {call} | {length} | {reference:,.0f} | {off:,.0f} | {_ratio(off, reference)} "
+            f"| {on:,.0f} | {_ratio(on, reference)} | {off / bare:.1%}, {on / bare:.1%} |"
+        )
+
+    for length in LENGTHS:
+        lines.append(row("routine", "routine", length, overhead("RepeatAction", length)))
+    lines.append(row("primitive", "primitive", 1, overhead("RepeatAction", 1)))
+    return lines + [""]
+
+
+def _ratio(value: float, reference: float) -> str:
+    """`value / reference` marked against the target (n/a when the reference is not > 0)."""
+    if reference <= 0:
+        return "n/a"
+    ratio = value / reference
+    return f"{ratio:.2f}" if ratio <= TARGET_RATIO else f"**{ratio:.2f}** (over)"
+
+
+def machine_info() -> dict[str, str]:
+    """CPU, cores, versions, date and load: what a reader needs to compare the figures."""
+    cpu = platform.processor() or "unknown"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {
+        "date": dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "cpu": cpu,
+        "cores": f"{os.cpu_count()} (usable: {len(os.sched_getaffinity(0))})",
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "gymnasium": gym.__version__,
+        "ale-py": ale_py.__version__,
+        "routine_gym": getattr(routine_gym, "__version__", "editable checkout"),
+        "platform": platform.platform(),
+    }
+
+
+def load_average() -> str:
+    """The 1-, 5- and 15-minute load averages, e.g. `2.10 1.85 1.40`."""
+    return " ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Parse the flags, measure every env, print and write the markdown tables."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--envs", nargs="+", choices=ENVS, default=list(ENVS),
+                        help="envs to measure (see the module docstring)")
+    parser.add_argument("--steps", type=int, default=200_000,
+                        help="primitive steps per measurement on the constant env")
+    parser.add_argument("--cartpole-steps", type=int, default=30_000,
+                        help="primitive steps per measurement on CartPole-v1")
+    parser.add_argument("--atari-steps", type=int, default=1_500,
+                        help="primitive steps per measurement on ALE/Qbert-v5")
+    parser.add_argument("--repeats", type=int, default=5,
+                        help="measurements per variant (the best is kept)")
+    parser.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "wrapper.md",
+                        help="markdown file to write")
+    args = parser.parse_args(argv)
+    steps = {"constant": args.steps, "cartpole": args.cartpole_steps, "qbert": args.atari_steps}
+    if min(steps.values()) < max(LENGTHS) or args.repeats < 1:
+        parser.error(f"steps must be ≥ {max(LENGTHS)} and repeats ≥ 1, got {steps}, "
+                     f"{args.repeats}")
+
+    command = shlex.join(sys.orig_argv)
+    info = machine_info()
+    print(f"# {command}\n# load average at start: {load_average()}", flush=True)
+    sections = []
+    for name in args.envs:
+        variants, load = measure(name, steps[name], args.repeats)
+        for v in variants:
+            print(f"{name:>8} {v.label:<18} L={v.length:<2} {v.best_ns:9,.0f} ns/step", flush=True)
+        sections += render_env(name, variants, steps[name], load)
+    info["load average at end"] = load_average()
+    text = "\n".join([
+        "# Wrapper overhead benchmark",
+        "",
+        "Produced by `bench/bench_wrapper.py`; the command, machine and load are below.",
+        "",
+        f"Command: `{command}`",
+        "",
+        *[f"- {k}: {v}" for k, v in info.items()],
+        "",
+        f"Best of {args.repeats} measurements per variant, garbage collector off while timing. "
+        "Overhead = wrapped − bare time per primitive step; ratio = RoutineActionWrapper's "
+        f"overhead / RepeatAction's at the same L (target ≤ {TARGET_RATIO}).",
+        "",
+        *sections,
+    ])
+    print(text)
+    atomic_write_text(args.out, text)
+    print(f"written to {args.out}")
+
+
+if __name__ == "__main__":
+    main()
