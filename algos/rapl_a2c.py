@@ -133,7 +133,7 @@ class Args:
     """save a resumable checkpoint every this many primitive steps (0: never)"""
     resume: str | None = None
     """checkpoint file (or run folder) to resume a killed run from, with its saved settings
-    (a --total-timesteps other than the default raises its budget)"""
+    (a --total-timesteps other than the default sets a new budget)"""
     eval_episodes: int = 10
     """episodes to evaluate the final policy on (0 disables); results in eval.json"""
     record_demo: str | None = None
@@ -318,10 +318,11 @@ def main(args: Args) -> None:
             path = os.path.join(path, "checkpoint.pt")
         checkpoint = torch.load(path, weights_only=True)
         saved = Args(**json.loads(checkpoint["args"]))
-        # The run continues as it was configured; only the budget may be raised, by giving a
-        # --total-timesteps other than the default (a bare --resume keeps the saved budget).
+        # The run continues as it was configured. A --total-timesteps other than the default
+        # sets a new budget: higher to train on, or at most the steps done to go straight to
+        # evaluation and demo recording (a bare --resume keeps the saved budget).
         if args.total_timesteps != Args.__dataclass_fields__["total_timesteps"].default:
-            saved.total_timesteps = max(saved.total_timesteps, args.total_timesteps)
+            saved.total_timesteps = args.total_timesteps
         saved.resume = path
         args = saved
         run_name = os.path.basename(os.path.dirname(os.path.abspath(path)))
@@ -329,7 +330,9 @@ def main(args: Args) -> None:
         checkpoint = None
         env_name = args.env_id.replace("/", "-")
         run_name = f"{env_name}__{args.exp_name}__{args.seed}__{int(time.time())}"
-    run_path = os.path.join(args.run_dir, run_name)
+    run_path = os.path.dirname(os.path.abspath(path)) if checkpoint else os.path.join(
+        args.run_dir, run_name
+    )
     os.makedirs(run_path, exist_ok=True)
     writer = SummaryWriter(run_path)
     writer.add_text(
