@@ -38,7 +38,7 @@ from __future__ import annotations
 import heapq
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any, Protocol
 
 import numpy as np
@@ -340,14 +340,8 @@ class SequiturMiner:
             raise ValueError(f"max_length needs to be ≥ 2 or None, got {self.max_length}")
 
     def params(self) -> dict[str, Any]:
-        return {
-            "proposer": self.name,
-            "num_routines": self.num_routines,
-            "length_weight": self.length_weight,
-            "alpha": self.alpha,
-            "prune_primitives": self.prune_primitives,
-            "max_length": self.max_length,
-        }
+        """The proposer's name and settings, as the library records them."""
+        return {"proposer": self.name, **asdict(self)}
 
     def candidates(self, episodes: Sequence[np.ndarray]) -> list[Routine]:
         """Every non-start rule of the grammar, expanded; duplicates merged, order kept."""
@@ -393,14 +387,8 @@ class _Ablation:
         _check_params(self.num_routines, self.length_weight, self.alpha)
 
     def params(self) -> dict[str, Any]:
-        return {
-            "proposer": self.name,
-            "num_routines": self.num_routines,
-            "length_weight": self.length_weight,
-            "alpha": self.alpha,
-            "prune_primitives": self.prune_primitives,
-            "seed": self.seed,
-        }
+        """The proposer's name and settings, as the library records them."""
+        return {"proposer": self.name, **asdict(self)}
 
     def mine(
         self,
