@@ -15,8 +15,12 @@ $(STAMP): pyproject.toml setup.py routine_gym/_sequitur.cpp
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2 tests
 
+# RAPL-A2C on Qbert from the shipped demo, with a budget that ends in about 10 minutes on a
+# 2-core CPU; the paper's budget is `python algos/rapl_a2c.py --env-id ALE/Qbert-v5` (10M steps).
 run: $(STAMP)
-	$(VENV)/bin/routine-gym mine demos/MiniQbert-v0.npz
+	$(VENV)/bin/routine-gym mine demos/ALE-Qbert-v5.npz
+	$(PY) algos/rapl_a2c.py --env-id ALE/Qbert-v5 --total-timesteps 200000 --eval-episodes 3 \
+		--log-every 10000
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check routine_gym algos tests bench
