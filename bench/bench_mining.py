@@ -5,7 +5,8 @@ the time the pure-Python scikit-sequitur needs for the grammar alone, measured i
 on the same input; memory linear in the input; the same input always giving the same library.
 
 For each size this measures, best of several repeats (`gc.collect()` before each, the
-collector left on while timing, as a user runs it):
+collector left on while timing, as a user runs it; the contenders take turns within each
+round, so a change of load on a shared machine reaches them alike):
 
 - ``sksequitur``: `sksequitur.parse(actions)`, the grammar alone (the reference);
 - ``grammar C++``: `routine_gym.sequitur.induce(actions, backend="c")`;
@@ -122,18 +123,12 @@ def library_key(library: RoutineLibrary) -> tuple[Any, ...]:
     return (library.routines, library.scores, library.frequencies, library.occurrences)
 
 
-def best_time(fn: Callable[[], Any], repeats: int) -> tuple[float, list[Any]]:
-    """Best wall time of `repeats` calls of `fn` (seconds), and every call's result."""
-    best, results = float("inf"), []
-    for _ in range(repeats):
-        gc.collect()  # garbage left by the previous call must not be collected on this one's time
-        start = time.perf_counter_ns()
-        result = fn()
-        elapsed = (time.perf_counter_ns() - start) / 1e9
-        best = min(best, elapsed)
-        results.append(result)
-        del result
-    return best, results
+def timed(fn: Callable[[], Any]) -> tuple[float, Any]:
+    """Wall time of one call of `fn` (seconds), and its result."""
+    gc.collect()  # garbage left by the previous call must not be collected on this one's time
+    start = time.perf_counter_ns()
+    result = fn()
+    return (time.perf_counter_ns() - start) / 1e9, result
 
 
 def traced_peak(fn: Callable[[], Any]) -> int:
@@ -213,10 +208,25 @@ def measure(kind: str, size: int, repeats: int, slow_repeats: int) -> dict[str, 
     """Every figure of one row: timings, memory, determinism."""
     actions = make_input(kind, size)
     load_before = load_average()
-    sks, _ = best_time(lambda: sksequitur_parse(actions), slow_repeats)
-    grammar_c, grammars_c = best_time(lambda: induce(actions, backend="c"), repeats)
-    mined, libraries = best_time(lambda: mine(actions), repeats)
-    grammar_py, grammars_py = best_time(lambda: induce(actions, backend="python"), slow_repeats)
+    runs: dict[str, tuple[Callable[[], Any], int]] = {
+        "sks": (lambda: sksequitur_parse(actions), slow_repeats),
+        "grammar_c": (lambda: induce(actions, backend="c"), repeats),
+        "mine": (lambda: mine(actions), repeats),
+        "grammar_py": (lambda: induce(actions, backend="python"), slow_repeats),
+    }
+    best = dict.fromkeys(runs, float("inf"))
+    results: dict[str, list[Any]] = {name: [] for name in runs}
+    # Round by round, so that a change of load on the machine reaches every contender alike.
+    for round_ in range(max(repeats, slow_repeats)):
+        for name, (fn, count) in runs.items():
+            if round_ < count:
+                seconds, result = timed(fn)
+                best[name] = min(best[name], seconds)
+                results[name].append(result if name != "sks" else None)
+                del result
+    grammars_c, libraries, grammars_py = (
+        results["grammar_c"], results["mine"], results["grammar_py"]
+    )
     peak = traced_peak(lambda: mine(actions))
     child = run_child(kind, size)
     keys = [library_key(lib) for lib in libraries]
@@ -224,10 +234,7 @@ def measure(kind: str, size: int, repeats: int, slow_repeats: int) -> dict[str, 
     return {
         "kind": kind,
         "size": size,
-        "sks": sks,
-        "grammar_c": grammar_c,
-        "mine": mined,
-        "grammar_py": grammar_py,
+        **best,
         "rules": len(grammars_c[0]),
         "traced_peak": peak,
         "rss_growth": child["rss_growth"],
@@ -328,7 +335,7 @@ def main(argv: list[str] | None = None) -> None:
                         help="input kinds (see the module docstring)")
     parser.add_argument("--repeats", type=int, default=3,
                         help="runs per measurement (the best is kept)")
-    parser.add_argument("--slow-repeats", type=int, default=2,
+    parser.add_argument("--slow-repeats", type=int, default=1,
                         help="runs of the pure-Python grammars above 100k actions")
     parser.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "mining.md",
                         help="markdown file to write")
@@ -343,7 +350,8 @@ def main(argv: list[str] | None = None) -> None:
 
     command = shlex.join(sys.orig_argv)
     info = machine_info()
-    print(f"# {command}\n# load average at start: {load_average()}", flush=True)
+    info["load average at start"] = load_average()
+    print(f"# {command}\n# load average at start: {info['load average at start']}", flush=True)
     rows = []
     for kind in args.inputs:
         for size in args.sizes:
