@@ -91,6 +91,12 @@ class Policy(nn.Module):
 
 
 def main(args: Args) -> dict | None:
+    for name, ok in (("total_timesteps", args.total_timesteps >= 0),
+                     ("batch_size", args.batch_size >= 1),
+                     ("eval_episodes", args.eval_episodes >= 0)):
+        if not ok:
+            raise ValueError(f"--{name.replace('_', '-')} needs to be ≥ {int(name == 'batch_size')}"
+                             f", actual value: {getattr(args, name)}")
     env_name = args.env_id.replace("/", "-")
     run_name = f"{env_name}__{args.exp_name}__{args.seed}__{int(time.time())}"
     run_path = os.path.join(args.run_dir, run_name)
@@ -118,7 +124,7 @@ def main(args: Args) -> dict | None:
     print(f"demo {args.demo}: score {demo.score:g}, {len(pairs)} (state, action) pairs",
           flush=True)
     policy = Policy(args.env_id, pairs.states.shape[1:], pairs.states.dtype, num_actions).to(device)
-    optimizer = torch.optim.Adam(policy.parameters(), lr=args.learning_rate)
+    optimizer = torch.optim.Adam(policy.parameters(), lr=args.learning_rate, fused=True)
 
     start_time = time.time()
     for step in range(1, args.total_timesteps + 1):

@@ -155,6 +155,10 @@ class Discriminator(nn.Module):
 
 
 def main(args: Args) -> dict | None:
+    for name in ("num_envs", "num_steps", "num_minibatches", "update_epochs", "disc_minibatches"):
+        if getattr(args, name) < 1:
+            raise ValueError(f"--{name.replace('_', '-')} needs to be ≥ 1, "
+                             f"actual value: {getattr(args, name)}")
     env_name = args.env_id.replace("/", "-")
     run_name = f"{env_name}__{args.exp_name}__{args.seed}__{int(time.time())}"
     run_path = os.path.join(args.run_dir, run_name)
@@ -190,9 +194,10 @@ def main(args: Args) -> dict | None:
     )
     obs_space = envs.single_observation_space
     agent = Agent(args.env_id, obs_space, num_actions).to(device)
-    optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5)
+    optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=True)
     discriminator = Discriminator(args.env_id, obs_space, num_actions).to(device)
-    disc_optimizer = torch.optim.Adam(discriminator.parameters(), lr=args.disc_learning_rate)
+    disc_optimizer = torch.optim.Adam(discriminator.parameters(), lr=args.disc_learning_rate,
+                                      fused=True)
 
     batch_size = args.num_envs * args.num_steps
     minibatch_size = max(batch_size // args.num_minibatches, 1)

@@ -23,10 +23,11 @@
 
 SQIL reward convention for a routine. A demo transition gets `r = 1` for *every primitive step*
 it spans, so a routine occurrence of length ℓ gets `R_sq = Σ_{τ=1}^{ℓ} γ^{τ-1} = (1 − γ^ℓ)/(1 − γ)`
-and discount `Γ = γ^ℓ`: exactly the discounted reward of the ℓ primitive demo transitions it
-replaces, so a routine and the primitive chain it stands for have the same fixed point and
-neither is preferred for its length alone. Agent transitions get `r = 0`, so `R_sq = 0` and
-`Γ = γ^ℓ` with ℓ the executed length.
+and discount `Γ = γ^ℓ`: exactly the discounted SQIL reward of the ℓ primitive demo transitions
+it replaces, so a routine is worth what the chain of demo steps it stands for is worth (one
+decision with `r = 1` per routine would instead make long routines look worse per step, and a
+plain sum would make them look better than their chain). Agent transitions get `r = 0`, so
+`R_sq = 0` and `Γ = γ^ℓ` with ℓ the executed length.
 """
 
 from __future__ import annotations
@@ -42,11 +43,17 @@ import gymnasium as gym
 import numpy as np
 import torch
 from gymnasium import spaces
-from gymnasium.wrappers import FrameStackObservation, RecordEpisodeStatistics, ResizeObservation
+from gymnasium.wrappers import RecordEpisodeStatistics
 
 from routine_gym.atomic import atomic_write_text
 from routine_gym.demo import Demo, record_agent_demo, replay, shipped_demo_path
-from routine_gym.envs.factory import default_env_kwargs, is_atari, make_primitive_env, preprocess
+from routine_gym.envs.factory import (
+    default_env_kwargs,
+    is_atari,
+    make_primitive_env,
+    preprocess,
+    preprocess_observation,
+)
 from routine_gym.library import RoutineLibrary
 from routine_gym.metrics import alignment_score, human_normalized_score
 from routine_gym.mining import OccurrenceIndex, make_proposer
@@ -61,9 +68,9 @@ __all__ = [
     "evaluate_imitation",
     "load_demo",
     "load_routine_library",
-    "save_evaluation",
     "primitive_transitions",
     "routine_transitions",
+    "save_evaluation",
     "soft_value",
     "sqil_reward_and_discount",
     "sqil_target",
@@ -236,16 +243,6 @@ class _FramePlayback(gym.Env):
         return self.frames[self._t], 0.0, False, False, {}
 
 
-def _observation_view(env: gym.Env, env_id: str) -> gym.Env:
-    """The observation wrappers of `preprocess` (no reset-side wrappers): grey, 84×84, stack 4."""
-    if not is_atari(env_id):
-        return env
-    if len(env.observation_space.shape) == 3:
-        env = gym.wrappers.GrayscaleObservation(env)
-    env = ResizeObservation(env, (84, 84))
-    return FrameStackObservation(env, 4)
-
-
 def state_offsets(episode_lengths: Sequence[int] | np.ndarray) -> np.ndarray:
     """Where each episode's states start in the array of `agent_view_states`.
 
@@ -290,7 +287,7 @@ def agent_view_states(demo: Demo, env_id: str) -> np.ndarray:
         if not is_atari(env_id):
             states.append(frames)
             continue
-        view = _observation_view(_FramePlayback(frames), env_id)
+        view = preprocess_observation(_FramePlayback(frames), env_id)
         obs, _ = view.reset()
         stacked = [obs]
         for _ in range(len(frames) - 1):
@@ -614,7 +611,10 @@ class FrameReplayMemory:
 
     def __len__(self) -> int:
         """Transitions that can be sampled."""
-        return self.num_transitions
+        if not (self.full and self.frame_stack > 1):
+            return self.num_transitions
+        oldest = (self.pos + np.arange(self.frame_stack - 1)) % self.capacity
+        return self.num_transitions - int(self.has_next[oldest].sum())
 
     def _write(self, obs: np.ndarray, first: bool) -> None:
         p = self.pos

@@ -38,6 +38,7 @@ __all__ = [
     "make_env",
     "make_primitive_env",
     "preprocess",
+    "preprocess_observation",
 ]
 
 COINRUN_ID = "procgen/CoinRun-v0"
@@ -73,6 +74,13 @@ def preprocess(env: gym.Env, env_id: str, *, training: bool = True) -> gym.Env:
         env = FireReset(env)
     if training:
         env = TransformReward(env, sign_reward)
+    return preprocess_observation(env, env_id)
+
+
+def preprocess_observation(env: gym.Env, env_id: str) -> gym.Env:
+    """The observation side of `preprocess` alone: Atari frames to 84×84 grey, stacked by 4."""
+    if not is_atari(env_id):
+        return env
     if len(env.observation_space.shape) == 3:  # an RGB primitive env
         env = gym.wrappers.GrayscaleObservation(env)
     env = ResizeObservation(env, (84, 84))
