@@ -21,13 +21,16 @@ Per mode the table gives mean ± sample standard deviation over seeds, and every
 The Atari part (`--atari-env-id`, default `ALE/Qbert-v5`) runs only with `--atari-steps N`
 > 0; its routines come from `demos/ALE-Qbert-v5.npz` when it exists, else from a random-policy
 demo recorded first (as in `bench_a2c_speed.py`). Runs go to a temporary folder unless
-`--run-dir` is given (then they are kept).
+`--run-dir` is given (then they are kept). The raw numbers go beside the report as JSON;
+`--from-json` writes one report from several such files (e.g. a MiniQbert and a later Atari
+invocation) without running anything.
 
 Usage:
     python bench/bench_learning.py                                # MiniQbert, 200k steps, 3 seeds
     python bench/bench_learning.py --steps 300000 --seeds 1 2 3 4 5
     python bench/bench_learning.py --steps 0 --atari-steps 100000  # Atari only
     python bench/bench_learning.py --script-args "--learning-rate 1e-3"
+    python bench/bench_learning.py --from-json mini.json atari.json --out bench/results/learning.md
 """
 
 from __future__ import annotations
@@ -58,6 +61,8 @@ from bench_a2c_speed import (  # noqa: E402  (a sibling script, not a package)
 
 MODES = ("a2c", "rapl", "macro")
 CURVE_POINTS = (0.25, 0.5, 0.75, 1.0)
+DEFAULT_WINDOW = 100
+ATARI_WINDOW = 20
 
 
 def expert_return(env_id: str) -> float | None:
@@ -168,6 +173,7 @@ def run_one(env_id: str, mode: str, seed: int, steps: int, demo: str | None, roo
     scalars = read_scalars(run_path)
     ret_steps, returns = scalars.get("charts/episodic_return", (np.zeros(0), np.zeros(0)))
     window = window_of(env_id, args)
+    record["window"] = window
     record["curve"] = curve_summary(ret_steps, returns, window, steps)
     expert = args.expert.get(env_id)
     if expert is not None:
@@ -207,13 +213,16 @@ def median_steps(steps: list[int | None]) -> float:
     return float(np.median([math.inf if s is None else s for s in steps]))
 
 
-def render_env(env_id: str, records: list[dict], args) -> list[str]:
+def render_env(env_id: str, records: list[dict], fractions: list[float],
+               expert: float | None) -> list[str]:
     """The tables of one env."""
     budget = records[0]["steps"]
-    expert = args.expert.get(env_id)
+    seeds = sorted({r["seed"] for r in records})
+    # Runs recorded before "window" was stored used the defaults (Atari: ATARI_WINDOW).
+    window = records[0].get("window", DEFAULT_WINDOW if expert is not None else ATARI_WINDOW)
     lines = [f"## {env_id}: {budget:,} agent steps per run, seeds "
-             f"{', '.join(str(s) for s in args.seeds)}", "",
-             f"Rolling mean over {window_of(env_id, args)} training episodes."
+             f"{', '.join(str(s) for s in seeds)}", "",
+             f"Rolling mean over {window} training episodes."
              + (f" Expert return (shipped demo): {expert:g}." if expert is not None else ""),
              ""]
     lines += ["| mode | eval return (mean ± std over seeds) | per seed | rolling train return "
@@ -252,21 +261,21 @@ def render_env(env_id: str, records: list[dict], args) -> list[str]:
         lines += ["", f"Environment steps until the rolling mean first reaches a fraction of the "
                   f"expert's return ({expert:g}), per seed:", "",
                   "| mode | " + " | ".join(f"{f:g} × expert ({f * expert:g})"
-                                          for f in args.fractions) + " |",
-                  "|---|" + "---|" * len(args.fractions)]
+                                          for f in fractions) + " |",
+                  "|---|" + "---|" * len(fractions)]
         for mode, rs in by_mode.items():
             ok = [r for r in rs if "error" not in r]
             if not ok:
                 continue
             cells = []
-            for frac in args.fractions:
+            for frac in fractions:
                 per_seed = [r["steps_to"][f"{frac:g}"] for r in ok]
                 reached = sum(s is not None for s in per_seed)
                 cells.append(f"{', '.join(fmt_steps(s) for s in per_seed)} "
                              f"({reached}/{len(per_seed)})")
             lines.append(f"| {mode} | " + " | ".join(cells) + " |")
         if {"a2c", "rapl"} <= by_mode.keys():
-            full = max(args.fractions)
+            full = max(fractions)
             med = {m: median_steps([r["steps_to"][f"{full:g}"] for r in by_mode[m]
                                     if "error" not in r]) for m in ("a2c", "rapl")}
             if math.isinf(med["rapl"]) and math.isinf(med["a2c"]):
@@ -300,9 +309,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
     parser.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3])
     parser.add_argument("--eval-episodes", type=int, default=10)
-    parser.add_argument("--window", type=int, default=100,
+    parser.add_argument("--window", type=int, default=DEFAULT_WINDOW,
                         help="training episodes in the rolling mean of the curve")
-    parser.add_argument("--atari-window", type=int, default=20,
+    parser.add_argument("--atari-window", type=int, default=ATARI_WINDOW,
                         help="the same for the Atari runs")
     parser.add_argument("--fractions", nargs="+", type=float, default=[0.2, 0.5, 0.9, 1.0],
                         help="fractions of the expert's return to time (the largest is the "
@@ -314,6 +323,10 @@ def main(argv: list[str] | None = None) -> None:
                         help="extra arguments for every rapl_a2c.py run, e.g. \"--num-envs 8\"")
     parser.add_argument("--run-dir", type=Path, default=None,
                         help="keep the runs here (default: a temporary folder, deleted)")
+    parser.add_argument("--from-json", nargs="+", type=Path, default=None,
+                        help="run nothing: write the report of these raw-number files "
+                             "(this script's .json outputs), merged, e.g. a MiniQbert and an "
+                             "Atari invocation")
     parser.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "learning.md",
                         help="markdown report; the raw numbers go beside it as .json")
     args = parser.parse_args(argv)
@@ -327,15 +340,33 @@ def main(argv: list[str] | None = None) -> None:
                          f"actual value: {getattr(args, name)}")
     if any(not 0 < f for f in args.fractions):
         parser.error(f"--fractions need to be > 0, actual value: {args.fractions}")
-    if args.steps == 0 and args.atari_steps == 0:
-        parser.error("nothing to run: --steps and --atari-steps are both 0")
 
-    import routine_gym
     from routine_gym.atomic import atomic_write_text
+
+    if args.from_json:
+        batches = []
+        for path in args.from_json:
+            data = json.loads(Path(path).read_text())
+            batches += data["batches"] if "batches" in data else [data]
+    else:
+        if args.steps == 0 and args.atari_steps == 0:
+            parser.error("nothing to run: --steps and --atari-steps are both 0")
+        batches = [run_all(args)]
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(args.out, render(batches))
+    atomic_write_text(args.out.with_suffix(".json"),
+                      json.dumps({"batches": batches}, indent=2) + "\n")
+    print(f"written to {args.out} and {args.out.with_suffix('.json')}")
+
+
+def run_all(args) -> dict:
+    """Every planned run; the raw numbers of this invocation (a "batch")."""
+    import routine_gym
 
     routine_gym.register_envs()
     expert = args.expert_return if args.expert_return is not None else expert_return(args.env_id)
-    args.expert = {args.env_id: expert} if expert is not None else {}
+    experts = {args.env_id: expert} if expert is not None else {}
+    args.expert = experts
     command = "python " + shlex.join([os.path.relpath(__file__, REPO), *sys.argv[1:]])
     info = machine_info()
     print(f"# {command}\n# load average at start: {load_average()}\n"
@@ -372,30 +403,45 @@ def main(argv: list[str] | None = None) -> None:
 
     info["load average at end"] = load_average()
     info["busiest processes at end"] = other_processes()
+    return {"command": command, "machine": info, "fractions": args.fractions,
+            "expert": experts, "eval_episodes": args.eval_episodes,
+            "script_args": args.script_args, "demo": demo_note, "jobs": args.jobs,
+            "runs": records}
+
+
+def render(batches: list[dict]) -> str:
+    """The markdown report of one or more batches of runs."""
     lines = [
         "# rapl_a2c.py learning benchmark: a2c vs rapl vs macro",
         "",
-        "Produced by `bench/bench_learning.py`. Eval return: `eval.json` of each run "
-        f"({args.eval_episodes} full episodes of the final policy); std is the sample standard "
-        "deviation over seeds. Training curve: TensorBoard `charts/episodic_return` "
-        "(true full-game returns, logged at the primitive step each episode ended).",
+        "Produced by `bench/bench_learning.py` (commands, machine and loads below). Eval "
+        "return: `eval.json` of each run (full episodes of the final policy, without the "
+        "training-only wrappers); std is the sample standard deviation over seeds. Training "
+        "curve: TensorBoard `charts/episodic_return` (true full-game returns, logged at the "
+        "primitive step each episode ended).",
         "",
     ]
-    for env_id in dict.fromkeys(r["env_id"] for r in records):
-        lines += render_env(env_id, [r for r in records if r["env_id"] == env_id], args)
-    lines += ["## Setup", "", f"- Command: `{command}`",
-              f"- Extra script arguments: `{args.script_args}`" if args.script_args else
-              "- Extra script arguments: none (the script's defaults)"]
-    if demo_note:
-        lines.append(f"- Atari routines mined from: {demo_note}")
-    lines.append("- Command of the first run: `" + records[0]["command"] + "`")
-    lines += ["", "## Machine", ""] + [f"- {k}: {v}" for k, v in info.items()]
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(args.out, "\n".join(lines) + "\n")
-    raw = {"command": command, "machine": info, "window": args.window,
-           "fractions": args.fractions, "expert": args.expert, "runs": records}
-    atomic_write_text(args.out.with_suffix(".json"), json.dumps(raw, indent=2) + "\n")
-    print(f"written to {args.out} and {args.out.with_suffix('.json')}")
+    for batch in batches:
+        records = batch["runs"]
+        for env_id in dict.fromkeys(r["env_id"] for r in records):
+            lines += render_env(env_id, [r for r in records if r["env_id"] == env_id],
+                                batch["fractions"], batch["expert"].get(env_id))
+    for i, batch in enumerate(batches, 1):
+        script_args = batch.get("script_args")
+        lines += [f"## Setup{f' (batch {i})' if len(batches) > 1 else ''}", "",
+                  f"- Command: `{batch['command']}`",
+                  f"- Extra script arguments: `{script_args}`" if script_args else
+                  "- Extra script arguments: none (the script's defaults)"]
+        if batch.get("eval_episodes"):
+            lines.append(f"- Evaluation episodes per run: {batch['eval_episodes']}")
+        if batch.get("jobs"):
+            lines.append(f"- Runs at a time: {batch['jobs']}")
+        if batch.get("demo"):
+            lines.append(f"- Atari routines mined from: {batch['demo']}")
+        lines.append("- Command of the first run: `" + batch["runs"][0]["command"] + "`")
+        lines += ["", "Machine:", ""] + [f"- {k}: {v}" for k, v in batch["machine"].items()]
+        lines.append("")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

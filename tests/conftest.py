@@ -10,6 +10,8 @@ import pytest
 # pygame (imported by gymnasium.utils.play) must never try to open a window in the tests.
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
+# Scripts the tests start as subprocesses use torch's default thread count, which follows this.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 
