@@ -35,11 +35,9 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 import hashlib
 import json
 import os
-import platform
 import re
 import shlex
 import subprocess
@@ -48,6 +46,8 @@ import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+
+from common import base_machine_info, load_average
 
 REPO = Path(__file__).resolve().parents[1]
 SCRIPT = REPO / "algos" / "rapl_a2c.py"
@@ -87,38 +87,19 @@ class Result:
     extra: dict = field(default_factory=dict)
 
 
-def load_average() -> str:
-    """The 1-, 5- and 15-minute load averages, e.g. `2.10 1.85 1.40`."""
-    return " ".join(f"{x:.2f}" for x in os.getloadavg())
-
-
 def machine_info() -> dict[str, str]:
     """CPU, cores, library versions, thread settings and date: what a reader needs to compare."""
     import ale_py
     import gymnasium as gym
-    import numpy as np
     import torch
 
-    cpu = platform.processor() or "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
     info = {
-        "date": dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
-        "cpu": cpu,
-        "cores": f"{os.cpu_count()} (usable: {len(os.sched_getaffinity(0))})",
+        **base_machine_info(),
         "memory": _memory(),
-        "python": platform.python_version(),
-        "numpy": np.__version__,
         "torch": f"{torch.__version__} (default threads {torch.get_num_threads()}, "
                  f"interop {torch.get_num_interop_threads()})",
         "gymnasium": gym.__version__,
         "ale-py": ale_py.__version__,
-        "platform": platform.platform(),
         "thread env vars": ", ".join(
             f"{k}={os.environ[k]}" for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS")
             if k in os.environ

@@ -36,11 +36,9 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 import gc
 import json
 import os
-import platform
 import shlex
 import subprocess
 import sys
@@ -53,6 +51,7 @@ from typing import Any
 
 import numpy as np
 import sksequitur
+from common import base_machine_info, load_average
 from sksequitur import parse as sksequitur_parse
 
 import routine_gym
@@ -178,30 +177,12 @@ def run_child(kind: str, size: int) -> dict[str, Any]:
 
 
 def machine_info() -> dict[str, str]:
-    """CPU, cores, versions, date and load: what a reader needs to compare the figures."""
-    cpu = platform.processor() or "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    """The machine, versions and date: what a reader needs to compare the figures."""
     return {
-        "date": dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
-        "cpu": cpu,
-        "cores": f"{os.cpu_count()} (usable: {len(os.sched_getaffinity(0))})",
-        "python": platform.python_version(),
-        "numpy": np.__version__,
+        **base_machine_info(),
         "scikit-sequitur": sksequitur.__version__,
         "routine_gym": getattr(routine_gym, "__version__", "editable checkout"),
-        "platform": platform.platform(),
     }
-
-
-def load_average() -> str:
-    """The 1-, 5- and 15-minute load averages, e.g. `2.10 1.85 1.40`."""
-    return " ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
 def measure(kind: str, size: int, repeats: int, slow_repeats: int) -> dict[str, Any]:

@@ -38,10 +38,7 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 import gc
-import os
-import platform
 import shlex
 import sys
 import time
@@ -53,6 +50,7 @@ from typing import Any
 import ale_py
 import gymnasium as gym
 import numpy as np
+from common import base_machine_info, load_average
 from gymnasium import spaces
 from gymnasium.wrappers import RecordEpisodeStatistics, RepeatAction, TimeLimit
 
@@ -290,31 +288,13 @@ def _ratio(value: float, reference: float) -> str:
 
 
 def machine_info() -> dict[str, str]:
-    """CPU, cores, versions, date and load: what a reader needs to compare the figures."""
-    cpu = platform.processor() or "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    """The machine, versions and date: what a reader needs to compare the figures."""
     return {
-        "date": dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
-        "cpu": cpu,
-        "cores": f"{os.cpu_count()} (usable: {len(os.sched_getaffinity(0))})",
-        "python": platform.python_version(),
-        "numpy": np.__version__,
+        **base_machine_info(),
         "gymnasium": gym.__version__,
         "ale-py": ale_py.__version__,
         "routine_gym": getattr(routine_gym, "__version__", "editable checkout"),
-        "platform": platform.platform(),
     }
-
-
-def load_average() -> str:
-    """The 1-, 5- and 15-minute load averages, e.g. `2.10 1.85 1.40`."""
-    return " ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
 def main(argv: list[str] | None = None) -> None:
