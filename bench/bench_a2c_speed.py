@@ -7,13 +7,15 @@ the agent steps per second of SB3's A2C measured in the same run, with the routi
 Configurations, each run as its own subprocess so that nothing (threads, caches, ALE state) is
 shared between them:
 
-- ``ours a2c`` / ``ours rapl``: `python algos/rapl_a2c.py --mode {a2c,rapl} --num-envs 16
-  --eval-episodes 0 --torch-threads {1,2}` (1 is the script's default). RAPL mines its routines
+- ``a2c-t1`` … ``rapl-async-t2``: `python algos/rapl_a2c.py --mode {a2c,rapl} --num-envs 16
+  --eval-episodes 0 --torch-threads {1,2} [--async-envs]` (the script's default is
+  `--torch-threads 0`, torch's own count: 2 on a 2-core machine). RAPL mines its routines
   from `--demo`: `demos/ALE-Qbert-v5.npz` when it exists, else a one-episode random-policy Qbert
   demo (at most 2,000 steps) recorded into a temporary folder first.
-- ``SB3 A2C``: the RL Zoo's Atari A2C: `make_atari_env("QbertNoFrameskip-v4", n_envs=16)`,
-  `VecFrameStack(n_stack=4)`, `A2C("CnnPolicy", n_steps=5, ent_coef=0.01, vf_coef=0.25)` with
-  `RMSpropTFLike(eps=1e-5)`, once with torch's default thread count and once with 1 thread.
+- ``sb3-default`` / ``sb3-t1``: the RL Zoo's Atari A2C: `make_atari_env("QbertNoFrameskip-v4",
+  n_envs=16)`, `VecFrameStack(n_stack=4)`, `A2C("CnnPolicy", n_steps=5, ent_coef=0.01,
+  vf_coef=0.25)` with `RMSpropTFLike(eps=1e-5)`, once with torch's default thread count and
+  once with 1 thread; its 16 envs are stepped in one process (`DummyVecEnv`).
 
 Agent steps are primitive agent steps (4 frames each, in both libraries): a routine of length
 ℓ counts ℓ. Each configuration runs `--warmup` steps, then `--steps` measured steps; the time is
@@ -22,9 +24,9 @@ at the first step ≥ warm-up to that of its last line (`--log-every 1000`), and
 callback at the same points (both brackets hold the same number of whole updates). Env
 creation, routine mining, the first `reset` and the final `close` are outside it. The script's
 own cumulative `SPS` (which includes the warm-up) is reported beside it, and so is the CPU time
-the process used over the same steps (/proc for the script, `time.process_time()` for SB3),
-which a shared machine disturbs less than wall time. The load averages are taken before each
-configuration; each summary figure is the best repeat of its configuration.
+used over the same steps (/proc for the script and its env workers, `time.process_time()` for
+SB3), which a shared machine disturbs less than wall time. The load averages are taken before
+each configuration; each summary figure is the best repeat of its configuration.
 
 Usage:
     python bench/bench_a2c_speed.py
@@ -46,6 +48,7 @@ import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 from common import base_machine_info, load_average
 
@@ -53,14 +56,28 @@ REPO = Path(__file__).resolve().parents[1]
 SCRIPT = REPO / "algos" / "rapl_a2c.py"
 #: The SPEC §7 target: ours / SB3 in agent steps per second.
 TARGET_RATIO = 1.5
-#: name -> (kind, mode or None, torch threads; 0 = torch's default)
-CONFIGS: dict[str, tuple[str, str | None, int]] = {
-    "a2c-t1": ("ours", "a2c", 1),
-    "a2c-t2": ("ours", "a2c", 2),
-    "rapl-t1": ("ours", "rapl", 1),
-    "rapl-t2": ("ours", "rapl", 2),
-    "sb3-default": ("sb3", None, 0),
-    "sb3-t1": ("sb3", None, 1),
+
+
+class Config(NamedTuple):
+    """Whose A2C, which mode, torch threads (0: torch's default), envs in subprocesses or not."""
+
+    kind: str
+    mode: str | None
+    threads: int
+    async_envs: bool = False
+
+
+CONFIGS: dict[str, Config] = {
+    "a2c-t1": Config("ours", "a2c", 1),
+    "a2c-t2": Config("ours", "a2c", 2),
+    "rapl-t1": Config("ours", "rapl", 1),
+    "rapl-t2": Config("ours", "rapl", 2),
+    "a2c-async-t1": Config("ours", "a2c", 1, True),
+    "a2c-async-t2": Config("ours", "a2c", 2, True),
+    "rapl-async-t1": Config("ours", "rapl", 1, True),
+    "rapl-async-t2": Config("ours", "rapl", 2, True),
+    "sb3-default": Config("sb3", None, 0),
+    "sb3-t1": Config("sb3", None, 1),
 }
 PROGRESS = re.compile(r"^step\s+([\d,]+)/[\d,]+\s+SPS\s+(\d+).*routine use\s+([\d.]+)%")
 
@@ -147,6 +164,26 @@ def process_cpu_seconds(pid: int) -> float | None:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def tree_cpu_seconds(pid: int) -> float | None:
+    """CPU time of process `pid` and of all its descendants alive now (AsyncVectorEnv workers)."""
+    parents: dict[int, int] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:  # the process ended meanwhile
+            continue
+        parents[int(stat.parent.name)] = int(fields[1])
+    tree, frontier = {pid}, [pid]
+    while frontier:
+        children = [p for p, parent in parents.items() if parent in frontier]
+        tree.update(children)
+        frontier = children
+    total = process_cpu_seconds(pid)
+    if total is None:
+        return None
+    return total + sum(process_cpu_seconds(p) or 0.0 for p in tree - {pid})
+
+
 def other_processes(top: int = 3) -> str:
     """The busiest other processes (ps), so a reader sees what shared the CPU."""
     try:
@@ -197,9 +234,9 @@ def qbert_demo(env_id: str, requested: str | None, workdir: Path) -> tuple[str, 
 # ---------------------------------------------------------------------------------------------
 
 
-def run_ours(name: str, mode: str, threads: int, args, demo: str, run_dir: Path,
-             repeat: int) -> Result:
+def run_ours(name: str, config: Config, args, demo: str, run_dir: Path, repeat: int) -> Result:
     """Run `rapl_a2c.py` in a subprocess and time its progress lines as they arrive."""
+    mode, threads = config.mode, config.threads
     total = args.warmup + args.steps
     cmd = [sys.executable, str(SCRIPT), "--env-id", args.env_id, "--mode", mode,
            "--num-envs", str(args.num_envs), "--total-timesteps", str(total),
@@ -207,6 +244,8 @@ def run_ours(name: str, mode: str, threads: int, args, demo: str, run_dir: Path,
            "--torch-threads", str(threads), "--run-dir", str(run_dir), "--seed", "1"]
     if mode != "a2c":
         cmd += ["--demo", demo]
+    if config.async_envs:
+        cmd.append("--async-envs")
     result = Result(name, repeat, shlex.join(cmd), str(threads), load_average())
     stamps: list[tuple[float, int, int, float, float | None]] = []
     header: list[str] = []
@@ -220,7 +259,7 @@ def run_ours(name: str, mode: str, threads: int, args, demo: str, run_dir: Path,
             if match:
                 step = int(match.group(1).replace(",", ""))
                 stamps.append((now, step, int(match.group(2)), float(match.group(3)),
-                               process_cpu_seconds(proc.pid)))
+                               tree_cpu_seconds(proc.pid)))
             elif not stamps:
                 header.append(line.rstrip())
         result.returncode = proc.wait()
@@ -353,7 +392,7 @@ def render(results: list[Result], info: dict[str, str], command: str, demo_note:
         if ref is None or r.error:
             return "–"
         value = r.sps / ref.sps
-        mark = "" if value >= TARGET_RATIO or CONFIGS[r.config][0] == "sb3" else " (under)"
+        mark = "" if value >= TARGET_RATIO or CONFIGS[r.config].kind == "sb3" else " (under)"
         return f"{value:.2f}×{mark}"
 
     lines = [
@@ -366,7 +405,9 @@ def render(results: list[Result], info: dict[str, str], command: str, demo_note:
         "included). `CPU s`: user + system CPU time of the process (all its threads) over the "
         "same steps; `steps per CPU s` is less sensitive to other jobs on a shared machine "
         "than SPS, but charges a 2-thread run for its threads' spinning. Target (SPEC §7): "
-        f"ours ≥ {TARGET_RATIO}× SB3 in SPS, routines on as fast as plain A2C.",
+        f"ours ≥ {TARGET_RATIO}× SB3 in SPS, routines on as fast as plain A2C. The load "
+        "average lags: just after an `--async-envs` run it still counts that run's env "
+        "workers.",
         "",
         "| config | torch threads | repeat | load (1/5/15) before | steps timed | wall s | SPS "
         "| script SPS | CPU s | steps per CPU s | routine use | ÷ SB3 (default threads) "
@@ -388,12 +429,14 @@ def render(results: list[Result], info: dict[str, str], command: str, demo_note:
         )
     lines += ["", "## Summary (best repeat of each configuration)", ""]
     default_threads = script_default_threads()
-    for name, (kind, mode, threads) in CONFIGS.items():
+    for name, config in CONFIGS.items():
         ours = best(results, name)
-        if kind != "ours" or ours is None:
+        if config.kind != "ours" or ours is None:
             continue
-        label = f"{mode}, --torch-threads {threads}"
-        if threads == default_threads:
+        label = f"{config.mode}, --torch-threads {config.threads}"
+        if config.async_envs:
+            label += ", --async-envs"
+        elif config.threads == default_threads:
             label += " (the script's default)"
         if sb3_default is None:
             lines.append(f"- {label}: {ours.sps:,.0f} SPS; SB3 not measured")
@@ -409,12 +452,11 @@ def render(results: list[Result], info: dict[str, str], command: str, demo_note:
             lines.append(f"  Per CPU second: {ours.cpu_sps:,.0f} steps, "
                          f"{ours.cpu_sps / sb3_default.cpu_sps:.2f}× SB3 default threads, "
                          f"{ours.cpu_sps / sb3_t1.cpu_sps:.2f}× SB3 1 thread.")
-    for threads in (1, 2):
-        a2c, rapl = best(results, f"a2c-t{threads}"), best(results, f"rapl-t{threads}")
+    for variant in ("t1", "t2", "async-t1", "async-t2"):
+        a2c, rapl = best(results, f"a2c-{variant}"), best(results, f"rapl-{variant}")
         if a2c is not None and rapl is not None:
-            lines.append(f"- rapl / a2c ({threads} thread{'s' if threads > 1 else ''}): "
-                         f"{rapl.sps / a2c.sps:.2f}× in agent steps (a routine of length ℓ "
-                         "counts ℓ steps).")
+            lines.append(f"- rapl / a2c ({variant}): {rapl.sps / a2c.sps:.2f}× in agent steps "
+                         "(a routine of length ℓ counts ℓ steps).")
     if default_threads == 0:
         lines.append("- The script's default `--torch-threads 0` is torch's own thread count "
                      f"({os.cpu_count()} here), i.e. the `-t{os.cpu_count()}` rows.")
@@ -487,17 +529,16 @@ def main(argv: list[str] | None = None) -> None:
     results: list[Result] = []
     with tempfile.TemporaryDirectory(prefix="bench_a2c_speed_") as tmp:
         demo, demo_note = ("", "not used")
-        if any(CONFIGS[c][1] not in (None, "a2c") for c in args.configs):
+        if any(CONFIGS[c].mode not in (None, "a2c") for c in args.configs):
             demo, demo_note = qbert_demo(args.env_id, args.demo, Path(tmp))
             print(f"# demo: {demo} ({demo_note})", flush=True)
         for repeat in range(1, args.repeats + 1):
             for name in args.configs:
-                kind, mode, threads = CONFIGS[name]
-                if kind == "ours":
-                    result = run_ours(name, mode, threads, args, demo, Path(tmp) / "runs",
-                                      repeat)
+                config = CONFIGS[name]
+                if config.kind == "ours":
+                    result = run_ours(name, config, args, demo, Path(tmp) / "runs", repeat)
                 else:
-                    result = run_sb3(name, threads, args, repeat)
+                    result = run_sb3(name, config.threads, args, repeat)
                 results.append(result)
                 print(f"{name:12s} repeat {repeat}  load {result.load_before}  "
                       + (f"FAILED {result.error}" if result.error else
