@@ -55,6 +55,7 @@ from routine_gym.metrics import human_normalized_score
 from routine_gym.mining import make_proposer
 from routine_gym.networks import ObservationEncoder, layer_init
 from routine_gym.returns import decision_returns, primitive_returns, routine_reward_and_discount
+from routine_gym.rng import rng_state, set_rng_state
 
 
 @dataclass
@@ -209,25 +210,6 @@ def _nonempty(library: RoutineLibrary, where: str, args: Args) -> RoutineLibrary
             f"too varied); use --mode a2c, a longer demo, or a smaller --alpha"
         )
     return library
-
-
-def rng_state() -> dict:
-    """Python, NumPy and torch RNG states as tensors and plain values (weights_only-safe)."""
-    kind, keys, pos, has_gauss, cached = np.random.get_state()
-    py_version, py_state, py_gauss = random.getstate()
-    return {
-        "python": [py_version, list(py_state), py_gauss],
-        "numpy": [kind, torch.from_numpy(keys.astype(np.int64)), pos, has_gauss, cached],
-        "torch": torch.get_rng_state(),
-    }
-
-
-def set_rng_state(state: dict) -> None:
-    py_version, py_state, py_gauss = state["python"]
-    random.setstate((py_version, tuple(py_state), py_gauss))
-    kind, keys, pos, has_gauss, cached = state["numpy"]
-    np.random.set_state((kind, keys.numpy().astype(np.uint32), pos, has_gauss, cached))
-    torch.set_rng_state(state["torch"])
 
 
 def save_checkpoint(path: str, agent, optimizer, global_step: int, iteration: int,

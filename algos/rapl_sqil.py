@@ -68,6 +68,7 @@ from routine_gym.imitation import (
 )
 from routine_gym.library import RoutineLibrary
 from routine_gym.networks import ObservationEncoder, layer_init
+from routine_gym.rng import rng_state, set_rng_state
 
 
 @dataclass
@@ -154,7 +155,7 @@ class QNetwork(nn.Module):
 
 def save_checkpoint(path: str, q_network: QNetwork, target_network: QNetwork, optimizer,
                     global_step: int, updates: int, args: Args,
-                    library: RoutineLibrary | None) -> None:
+                    library: RoutineLibrary | None, rng: np.random.Generator) -> None:
     """Write a resumable checkpoint atomically (a kill mid-write keeps the previous one)."""
     torch.save(
         {
@@ -163,7 +164,7 @@ def save_checkpoint(path: str, q_network: QNetwork, target_network: QNetwork, op
             "optimizer": optimizer.state_dict(),
             "global_step": global_step,
             "updates": updates,
-            "torch_rng": torch.get_rng_state(),
+            "rng": rng_state(rng),
             "args": json.dumps(asdict(args)),
             "library": json.dumps(library.to_dict()) if library is not None else "",
         },
@@ -271,7 +272,7 @@ def main(args: Args) -> dict | None:
         target_network.load_state_dict(checkpoint["target"])
         optimizer.load_state_dict(checkpoint["optimizer"])
         global_step, updates = checkpoint["global_step"], checkpoint["updates"]
-        torch.set_rng_state(checkpoint["torch_rng"])
+        set_rng_state(checkpoint["rng"], rng)
         print(f"resumed {run_name} at step {global_step}")
     checkpoint_path = os.path.join(run_path, "checkpoint.pt")
     next_checkpoint = (global_step // args.checkpoint_every + 1) * args.checkpoint_every \
@@ -368,13 +369,13 @@ def main(args: Args) -> dict | None:
                   f"updates {updates:>7d}  routine use {usage:5.1%}", flush=True)
         if next_checkpoint is not None and global_step >= next_checkpoint:
             save_checkpoint(checkpoint_path, q_network, target_network, optimizer, global_step,
-                            updates, args, library)
+                            updates, args, library, rng)
             next_checkpoint = (global_step // args.checkpoint_every + 1) * args.checkpoint_every
 
     env.close()
     if args.checkpoint_every > 0:
         save_checkpoint(checkpoint_path, q_network, target_network, optimizer, global_step,
-                        updates, args, library)
+                        updates, args, library, rng)
     if args.save_model:
         model_path = os.path.join(run_path, "model.pt")
         torch.save(q_network.state_dict(), model_path + ".tmp")

@@ -3,6 +3,7 @@
     routine-gym mine demos/MiniQbert-v0.npz --num-routines 3 --out routines.json
     routine-gym show routines.json
     routine-gym replay demos/MiniQbert-v0.npz
+    routine-gym show-demos
     routine-gym record MiniQbert-v0 --policy expert --episodes 10 --out my_demo.npz
     routine-gym play ALE/Qbert-v5 --out my_qbert.npz
 
@@ -91,6 +92,42 @@ def cmd_show(args: argparse.Namespace) -> int:
         print(f"  action counts: {usage}")
         head = demo.episode_actions()[0][: args.head]
         print(f"  first actions: {routine_name(head.tolist(), meanings)}")
+    return 0
+
+
+def cmd_show_demos(args: argparse.Namespace) -> int:
+    from routine_gym.demo import DEMO_SUITE, DEMOS_DIR, Demo, demo_filename
+    from routine_gym.mining import SequiturMiner
+
+    folder = Path(args.dir) if args.dir else Path(DEMOS_DIR)
+    if not folder.is_dir():
+        raise CLIError(f"no demo folder at {folder}")
+    files = sorted(folder.glob("*.npz"))
+    shipped = {path.name for path in files}
+    missing = [env_id for env_id in DEMO_SUITE if demo_filename(env_id) not in shipped]
+    print(f"{len(files)} demo(s) in {folder}")
+    miner = SequiturMiner(num_routines=args.num_routines)
+    for path in files:
+        demo = Demo.load(path)
+        meta = demo.meta
+        trained = meta.get("trained_steps")
+        source = f"{meta.get('source', 'agent')} demo"
+        if trained:
+            source += f" from an agent ({meta.get('mode', 'a2c')}) trained {trained:,} steps"
+        if "candidates" in meta:
+            source += f", best of {len(meta['candidates']['seeds'])} episodes"
+        print(f"\n{demo.env_id}  ({path.name}, {path.stat().st_size / 1024:.1f} kB)")
+        print(f"  score {demo.score:g}, {len(demo.actions)} steps, "
+              f"{demo.num_episodes} episode(s); {source}")
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            library = miner.mine(demo)
+        for k in range(len(library)):
+            print(f"  routine {k}: {library.name(k)}  (f = {library.frequencies[k]})")
+        for w in caught:
+            print(f"  note: {w.message}")
+    for env_id in missing:
+        print(f"\n{env_id}: no demo in {folder} (expected {demo_filename(env_id)})")
     return 0
 
 
@@ -229,6 +266,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("path", help="a routine library JSON or a demo .npz")
     p.add_argument("--head", type=int, default=20, help="demo actions to print (20)")
     p.set_defaults(func=cmd_show)
+
+    p = sub.add_parser("show-demos", help="list the shipped demos with their mined routines",
+                       description="List every demo in demos/ (or --dir): env, score, length, "
+                       "source, and the routines mined from it with action names.")
+    p.add_argument("--dir", default=None, help="demo folder (the shipped demos/)")
+    p.add_argument("--num-routines", "-k", type=int, default=3, help="K, routines to mine (3)")
+    p.set_defaults(func=cmd_show_demos)
 
     p = sub.add_parser("replay", help="replay a demo from its seed and verify it",
                        description="Re-run the demo's actions in its env from its seed and "

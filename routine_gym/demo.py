@@ -1259,21 +1259,38 @@ def record_human_demo(
 
 
 __all__ = [
+    "DEMOS_DIR",
     "DEMO_FORMAT",
+    "DEMO_SUITE",
     "DEMO_VERSION",
     "Demo",
     "DemoEpisode",
     "DemoRecorder",
     "DemoReplayError",
     "ReplayResult",
+    "demo_filename",
     "record_agent_demo",
     "record_human_demo",
     "replay",
+    "shipped_demo_path",
 ]
 
 
 #: Where the shipped demonstrations live: `demos/` at the top of the repository.
 DEMOS_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "demos")
+
+
+#: The demonstration suite shipped in `demos/`: the paper's Atari games and CoinRun, one
+#: trained agent's demo each. `routine-gym show-demos` lists it; the scripts default to it.
+DEMO_SUITE: tuple[str, ...] = (
+    "ALE/Qbert-v5",
+    "ALE/Breakout-v5",
+    "ALE/SpaceInvaders-v5",
+    "ALE/BeamRider-v5",
+    "ALE/Seaquest-v5",
+    "ALE/MsPacman-v5",
+    "procgen/CoinRun-v0",
+)
 
 
 def demo_filename(env_id: str) -> str:

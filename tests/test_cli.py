@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -19,7 +20,7 @@ from routine_gym.library import RoutineLibrary
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
-SUBCOMMANDS = ("mine", "show", "replay", "record", "play")
+SUBCOMMANDS = ("mine", "show", "replay", "show-demos", "record", "play")
 
 
 @pytest.fixture
@@ -293,3 +294,33 @@ def test_library_json_from_mine_is_plain_json(tmp_path, shipped_demo, capsys):
     assert [list(r) for r in RoutineLibrary.load(out).routines] == [
         list(r) for r in data["routines"]
     ]
+
+
+# -- show-demos ----------------------------------------------------------------------------
+
+
+def test_show_demos_lists_each_demo_with_its_mined_routines(capsys, tmp_path, shipped_demo):
+    shutil.copy(shipped_demo, tmp_path / "MiniQbert-v0.npz")
+    assert main(["show-demos", "--dir", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "1 demo(s)" in out
+    assert "MiniQbert-v0  (MiniQbert-v0.npz" in out
+    assert "score 1050, 39 steps, 1 episode(s)" in out
+    # The shipped MiniQbert demo mines to these two routines (see test_shipped_demos).
+    assert "routine 0: LEFT DOWN LEFT DOWN  (f = 5)" in out
+    assert "routine 1: RIGHT RIGHT RIGHT LEFT DOWN LEFT DOWN  (f = 3)" in out
+    assert "only 2 routine(s) survive" in out
+    # Every suite env without a demo in the folder is named, with the file it expects.
+    assert "ALE/Breakout-v5: no demo" in out and "ALE-Breakout-v5.npz" in out
+    assert "procgen/CoinRun-v0: no demo" in out
+
+
+def test_show_demos_with_k_one_and_a_missing_folder(capsys, tmp_path, shipped_demo):
+    shutil.copy(shipped_demo, tmp_path / "MiniQbert-v0.npz")
+    assert main(["show-demos", "--dir", str(tmp_path), "-k", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "routine 0: LEFT DOWN LEFT DOWN" in out and "routine 1:" not in out
+    with pytest.raises(SystemExit) as excinfo:
+        main(["show-demos", "--dir", str(tmp_path / "nowhere")])
+    assert excinfo.value.code == 2
+    assert "no demo folder at" in capsys.readouterr().err
