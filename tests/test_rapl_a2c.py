@@ -20,7 +20,7 @@ import pytest
 import torch
 
 import routine_gym  # noqa: F401  (registers MiniQbert, CoinRun and the ALE envs)
-from routine_gym.demo import Demo, record_agent_demo, replay
+from routine_gym.demo import DEMO_SUITE, Demo, record_agent_demo, replay, shipped_demo_path
 from routine_gym.envs.factory import default_env_kwargs
 from routine_gym.library import RoutineLibrary
 
@@ -161,6 +161,23 @@ def test_every_mode_on_miniqbert_logs_the_standard_scalars(rapl_a2c, tmp_path, m
         assert all(0.0 <= u <= 1.0 for series in usage for u in series)
 
 
+def test_reward_scale_shrinks_the_learning_targets_but_not_the_logged_score(rapl_a2c, tmp_path):
+    losses, returns = {}, {}
+    for scale in (1.0, 0.01):
+        folder = run(rapl_a2c, tmp_path / str(scale), env_id="MiniQbert-v0", mode="a2c",
+                     total_timesteps=300, reward_scale=scale)
+        logged = scalars(folder)
+        losses[scale], returns[scale] = logged["losses/value_loss"], logged["charts/episodic_return"]
+    # Same seed, same first rollout: MiniQbert pays 25 per new cube, so unscaled returns are
+    # tens while scaled ones are tenths, and the first value loss shrinks by orders of magnitude.
+    assert losses[0.01][0] < losses[1.0][0] / 100
+    # The logged score is the game's: multiples of 25 at either scale.
+    assert returns[0.01] and all(r % 25 == 0 for r in returns[0.01])
+    assert max(returns[0.01]) >= 25
+    with pytest.raises(ValueError, match="--reward-scale needs to be > 0"):
+        rapl_a2c.main(rapl_a2c.Args(env_id="MiniQbert-v0", reward_scale=0.0))
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("mode", MODES)
 def test_every_mode_runs_on_atari_qbert(rapl_a2c, tmp_path, qbert_demo, mode):
@@ -191,6 +208,16 @@ def test_every_mode_runs_on_coinrun_with_procgen_options(
                  num_levels=7, start_level=3, distribution_mode="easy", total_timesteps=60)
     check_run_folder(folder, mode, eval_episodes=0)
     assert made == [{"num_levels": 7, "start_level": 3, "distribution_mode": "easy"}] * 2
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("env_id", DEMO_SUITE)
+def test_every_suite_env_runs_with_no_extra_flags(rapl_a2c, tmp_path, env_id):
+    # The default mode is rapl: the routines come from the shipped demo, mined on the fly.
+    folder = run(rapl_a2c, tmp_path, env_id=env_id, total_timesteps=40)
+    library = check_run_folder(folder, "rapl", eval_episodes=0)
+    assert len(library) == 3
+    assert library.source["path"] == shipped_demo_path(env_id)
 
 
 def test_procgen_is_evaluated_on_unseen_levels(rapl_a2c):
