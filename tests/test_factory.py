@@ -12,7 +12,14 @@ import pytest
 from gymnasium.wrappers import RecordEpisodeStatistics, TransformReward
 
 import routine_gym  # noqa: F401  (registers MiniQbert, CoinRun and the ALE envs)
-from routine_gym.envs.atari import EpisodicLife, FireReset, NoopReset, is_atari, sign_reward
+from routine_gym.envs.atari import (
+    EpisodicLife,
+    FireOnLifeLoss,
+    FireReset,
+    NoopReset,
+    is_atari,
+    sign_reward,
+)
 from routine_gym.envs.factory import (
     default_env_kwargs,
     is_procgen,
@@ -216,6 +223,57 @@ def test_fire_reset_refuses_a_game_without_fire_and_preprocess_skips_it():
     freeway.close()
 
 
+class _ActionLog(gym.Wrapper):
+    """Remembers every action that reaches the env it wraps."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.actions: list[int] = []
+
+    def step(self, action):
+        self.actions.append(int(action))
+        return self.env.step(action)
+
+
+def play_noops(env: gym.Env, log: _ActionLog, steps: int) -> tuple[bool, list[int]]:
+    """NOOP for up to `steps` agent steps; whether the game ended, and lives after each step."""
+    env.reset(seed=0)
+    log.actions.clear()
+    lives = []
+    for _ in range(steps):
+        _, _, terminated, truncated, _ = env.step(0)
+        lives.append(env.unwrapped.ale.lives())
+        if terminated or truncated:
+            return True, lives
+    return False, lives
+
+
+@pytest.mark.slow
+def test_fire_on_life_loss_serves_each_new_life_as_training_does():
+    # Breakout's paddle never moves under NOOP, so the served ball is soon lost; without a new
+    # serve (FIRE) the game then waits forever with 4 lives left.
+    log = _ActionLog(make_primitive_env("ALE/Breakout-v5"))
+    ended, lives = play_noops(FireReset(log), log, 1500)
+    assert not ended and lives[-1] == 4 and set(log.actions) == {0}
+
+    env = FireOnLifeLoss(log)
+    assert env.fire == 1  # Breakout's minimal set: NOOP, FIRE, RIGHT, LEFT
+    ended, lives = play_noops(FireReset(env), log, 1500)
+    assert ended and lives[-1] == 0
+    # Each of the 4 life losses before the last was followed by a NOOP and a FIRE step.
+    assert log.actions.count(1) == 4
+    fires = [i for i, a in enumerate(log.actions) if a == 1]
+    assert all(log.actions[i - 1] == 0 for i in fires)
+    log.close()
+
+
+def test_preprocess_serves_new_lives_only_outside_training():
+    env = make_primitive_env(QBERT)
+    assert FireOnLifeLoss in wrappers(preprocess(env, QBERT, training=False))
+    assert FireOnLifeLoss not in wrappers(preprocess(env, QBERT, training=True))
+    env.close()
+
+
 class _NamedActions(gym.Env):
     """A tiny env whose action 0 is not NOOP."""
 
@@ -235,7 +293,7 @@ def test_atari_wrappers_give_clear_errors():
         FireReset(_NamedActions())
     # Not an ALE env at all: a ValueError naming the env, not an AttributeError deep inside.
     cartpole = gym.make("CartPole-v1")
-    for wrapper in (NoopReset, FireReset, EpisodicLife):
+    for wrapper in (NoopReset, FireReset, EpisodicLife, FireOnLifeLoss):
         with pytest.raises(ValueError, match="CartPoleEnv"):
             wrapper(cartpole)
     cartpole.close()

@@ -167,7 +167,8 @@ def test_reward_scale_shrinks_the_learning_targets_but_not_the_logged_score(rapl
         folder = run(rapl_a2c, tmp_path / str(scale), env_id="MiniQbert-v0", mode="a2c",
                      total_timesteps=300, reward_scale=scale)
         logged = scalars(folder)
-        losses[scale], returns[scale] = logged["losses/value_loss"], logged["charts/episodic_return"]
+        losses[scale] = logged["losses/value_loss"]
+        returns[scale] = logged["charts/episodic_return"]
     # Same seed, same first rollout: MiniQbert pays 25 per new cube, so unscaled returns are
     # tens while scaled ones are tenths, and the first value loss shrinks by orders of magnitude.
     assert losses[0.01][0] < losses[1.0][0] / 100

@@ -13,7 +13,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-__all__ = ["EpisodicLife", "FireReset", "NoopReset", "is_atari"]
+__all__ = ["EpisodicLife", "FireOnLifeLoss", "FireReset", "NoopReset", "is_atari"]
 
 
 def is_atari(env_id: str) -> bool:
@@ -110,6 +110,48 @@ class FireReset(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if terminated or truncated:
             obs, info = self.env.reset(options=options)
         return obs, info
+
+
+class FireOnLifeLoss(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """After a life loss, take a NOOP and a FIRE step: the evaluation twin of `EpisodicLife`.
+
+    In training, `EpisodicLife` ends the episode at a life loss and its reset takes a NOOP step,
+    then `FireReset` presses FIRE, so every life the agent trains on starts that way, and an
+    agent need not learn to press FIRE itself. Evaluated on full games, the same agent can
+    wait forever for a ball that a serve would have launched (Breakout). This wrapper starts
+    each new life the way training did; the two steps are real game steps (a demo records
+    them as actions), their rewards are added to the step that lost the life.
+    """
+
+    def __init__(self, env: gym.Env) -> None:
+        if not hasattr(env.unwrapped, "ale"):
+            raise ValueError(
+                f"FireOnLifeLoss needs an ALE env (it reads ale.lives()), "
+                f"got {type(env.unwrapped).__name__}"
+            )
+        if "FIRE" not in _action_meanings(env):
+            raise ValueError("FireOnLifeLoss needs a FIRE action")
+        gym.utils.RecordConstructorArgs.__init__(self)
+        gym.Wrapper.__init__(self, env)
+        self.fire = _action_meanings(env).index("FIRE")
+        self.lives = 0
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        self.lives = self.env.unwrapped.ale.lives()
+        return obs, info
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        lives = self.env.unwrapped.ale.lives()
+        if 0 < lives < self.lives:
+            for extra in (0, self.fire):
+                if terminated or truncated:
+                    break
+                obs, r, terminated, truncated, info = self.env.step(extra)
+                reward += r
+        self.lives = self.env.unwrapped.ale.lives()
+        return obs, reward, terminated, truncated, info
 
 
 def sign_reward(reward: float) -> float:

@@ -29,7 +29,14 @@ from gymnasium.wrappers import (
     TransformReward,
 )
 
-from routine_gym.envs.atari import EpisodicLife, FireReset, NoopReset, is_atari, sign_reward
+from routine_gym.envs.atari import (
+    EpisodicLife,
+    FireOnLifeLoss,
+    FireReset,
+    NoopReset,
+    is_atari,
+    sign_reward,
+)
 
 __all__ = [
     "default_env_kwargs",
@@ -71,6 +78,8 @@ def preprocess(env: gym.Env, env_id: str, *, training: bool = True) -> gym.Env:
     if training:
         env = EpisodicLife(env)
     if "FIRE" in env.unwrapped.get_action_meanings():
+        if not training:  # each life starts as in training, where EpisodicLife + FireReset fire
+            env = FireOnLifeLoss(env)
         env = FireReset(env)
     if training:
         env = TransformReward(env, sign_reward)
