@@ -8,16 +8,18 @@ primitive actions) is fitted by cross-entropy to the demo's (state, action) pair
 interaction with the env: `--total-timesteps` counts gradient steps. The demo's states are
 rebuilt in the agent's view by replaying the demo (`routine_gym.imitation.agent_view_states`).
 The trained policy is then evaluated like SQIL's and GAIL's (`evaluate_imitation`): score and
-alignment of its primitive actions with the demo's, in `eval.json`.
+alignment of its primitive actions with the demo's, in `eval.json`. With `--checkpoint-every` a
+killed run resumes (`--resume`) exactly where it stopped: same batches, same optimizer state.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import random
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 import torch
@@ -28,6 +30,7 @@ from torch.distributions.categorical import Categorical
 from torch.utils.tensorboard import SummaryWriter
 
 import routine_gym
+from routine_gym.checkpoint import load_checkpoint, write_checkpoint
 from routine_gym.imitation import (
     agent_view_states,
     build_demo_transitions,
@@ -37,6 +40,7 @@ from routine_gym.imitation import (
     save_evaluation,
 )
 from routine_gym.networks import ObservationEncoder, layer_init
+from routine_gym.rng import rng_state, set_rng_state
 
 
 @dataclass
@@ -71,6 +75,11 @@ class Args:
     """cap on the primitive steps of an evaluation episode (default: the env's own limit)"""
     save_model: bool = False
     """save the final model to runs/{run_name}/model.pt"""
+    checkpoint_every: int = 0
+    """save a resumable checkpoint every this many gradient steps (0: never)"""
+    resume: str | None = None
+    """checkpoint file (or run folder) to resume from, with its saved settings
+    (a --total-timesteps other than the default raises the budget to it)"""
     log_every: int = 1_000
     """print a progress line every this many gradient steps"""
     run_dir: str = "runs"
@@ -90,6 +99,25 @@ class Policy(nn.Module):
         return self.actor(self.encoder(obs))
 
 
+#: What a checkpoint of this script holds (`--resume` checks for each).
+CHECKPOINT_KEYS = ("model", "optimizer", "step", "rng", "args")
+
+
+def save_checkpoint(path: str, policy: Policy, optimizer, step: int, args: Args,
+                    rng: np.random.Generator) -> None:
+    """Write a resumable checkpoint atomically (a kill mid-write keeps the previous one)."""
+    write_checkpoint(
+        {
+            "model": policy.state_dict(),
+            "optimizer": optimizer.state_dict(),
+            "step": step,
+            "rng": rng_state(rng),
+            "args": json.dumps(asdict(args)),
+        },
+        path,
+    )
+
+
 def main(args: Args) -> dict | None:
     for name, ok in (("total_timesteps", args.total_timesteps >= 0),
                      ("batch_size", args.batch_size >= 1),
@@ -97,9 +125,22 @@ def main(args: Args) -> dict | None:
         if not ok:
             raise ValueError(f"--{name.replace('_', '-')} needs to be ≥ {int(name == 'batch_size')}"
                              f", actual value: {getattr(args, name)}")
-    env_name = args.env_id.replace("/", "-")
-    run_name = f"{env_name}__{args.exp_name}__{args.seed}__{int(time.time())}"
-    run_path = os.path.join(args.run_dir, run_name)
+    if args.resume:
+        path, checkpoint = load_checkpoint(args.resume, CHECKPOINT_KEYS, "bc.py")
+        saved = Args(**json.loads(checkpoint["args"]))
+        # The run continues as it was configured; only the budget may be raised, by an explicit
+        # --total-timesteps (a bare --resume finishes the run as it was set up).
+        if args.total_timesteps != Args.total_timesteps:
+            saved.total_timesteps = max(saved.total_timesteps, args.total_timesteps)
+        saved.resume = path
+        args = saved
+        run_path = os.path.dirname(os.path.abspath(path))
+        run_name = os.path.basename(run_path)
+    else:
+        checkpoint = None
+        env_name = args.env_id.replace("/", "-")
+        run_name = f"{env_name}__{args.exp_name}__{args.seed}__{int(time.time())}"
+        run_path = os.path.join(args.run_dir, run_name)
     os.makedirs(run_path, exist_ok=True)
     writer = SummaryWriter(run_path)
     writer.add_text(
@@ -126,23 +167,38 @@ def main(args: Args) -> dict | None:
     policy = Policy(args.env_id, pairs.states.shape[1:], pairs.states.dtype, num_actions).to(device)
     optimizer = torch.optim.Adam(policy.parameters(), lr=args.learning_rate, fused=True)
 
-    start_time = time.time()
-    for step in range(1, args.total_timesteps + 1):
+    step = 0
+    if checkpoint is not None:
+        policy.load_state_dict(checkpoint["model"])
+        optimizer.load_state_dict(checkpoint["optimizer"])
+        step = checkpoint["step"]
+        set_rng_state(checkpoint["rng"], rng)
+        print(f"resumed {run_name} at step {step}")
+    checkpoint_path = os.path.join(run_path, "checkpoint.pt")
+
+    start_time, start_step = time.time(), step
+    while step < args.total_timesteps:
+        step += 1
         i = torch.as_tensor(rng.integers(0, len(pairs), size=args.batch_size), device=device)
         logits = policy(states[i])
         loss = F.cross_entropy(logits, actions[i])
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
+        sps = int((step - start_step) / max(time.time() - start_time, 1e-9))
         if step % 100 == 0 or step == args.total_timesteps:
             accuracy = (logits.argmax(1) == actions[i]).float().mean().item()
             writer.add_scalar("losses/bc_loss", loss.item(), step)
             writer.add_scalar("losses/accuracy", accuracy, step)
-            writer.add_scalar("charts/SPS", int(step / max(time.time() - start_time, 1e-9)),
-                              step)
+            writer.add_scalar("charts/SPS", sps, step)
         if step % args.log_every == 0 or step == args.total_timesteps:
             print(f"step {step:>8,d}/{args.total_timesteps:,d}  loss {loss.item():.4f}  "
-                  f"SPS {int(step / max(time.time() - start_time, 1e-9))}", flush=True)
+                  f"SPS {sps}", flush=True)
+        if args.checkpoint_every > 0 and step % args.checkpoint_every == 0:
+            save_checkpoint(checkpoint_path, policy, optimizer, step, args, rng)
+
+    if args.checkpoint_every > 0:
+        save_checkpoint(checkpoint_path, policy, optimizer, step, args, rng)
 
     if args.save_model:
         model_path = os.path.join(run_path, "model.pt")
@@ -161,8 +217,8 @@ def main(args: Args) -> dict | None:
 
         summary = evaluate_imitation(args.env_id, act, demo, args.eval_episodes,
                                      seed=args.seed + 10_000, max_steps=args.eval_max_steps)
-        summary.update(method="bc", global_step=args.total_timesteps)
-        save_evaluation(summary, run_path, writer, args.total_timesteps)
+        summary.update(method="bc", global_step=step)
+        save_evaluation(summary, run_path, writer, step)
     writer.close()
     return summary
 

@@ -17,15 +17,18 @@ favours ending episodes early); both are the usual choices of the GAIL literatur
 iteration collects a rollout, updates D on it (against as many demo pairs), relabels the rollout
 with the updated D, then runs the PPO update. `--total-timesteps` counts primitive env steps.
 The trained policy is evaluated like BC's and SQIL's (`evaluate_imitation`), in `eval.json`.
+With `--checkpoint-every` a killed run resumes (`--resume`) from its last checkpoint: networks,
+optimizers, step count and random generators as they were; the envs start fresh episodes.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import random
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Literal
 
 import gymnasium as gym
@@ -38,6 +41,7 @@ from torch.distributions.categorical import Categorical
 from torch.utils.tensorboard import SummaryWriter
 
 import routine_gym
+from routine_gym.checkpoint import load_checkpoint, write_checkpoint
 from routine_gym.envs.factory import make_env
 from routine_gym.imitation import (
     agent_view_states,
@@ -48,6 +52,7 @@ from routine_gym.imitation import (
     save_evaluation,
 )
 from routine_gym.networks import ObservationEncoder, layer_init
+from routine_gym.rng import rng_state, set_rng_state
 
 
 @dataclass
@@ -116,6 +121,11 @@ class Args:
     """cap on the primitive steps of an evaluation episode (default: the env's own limit)"""
     save_model: bool = False
     """save the final generator and discriminator to runs/{run_name}/model.pt"""
+    checkpoint_every: int = 0
+    """save a resumable checkpoint every this many primitive steps (0: never)"""
+    resume: str | None = None
+    """checkpoint file (or run folder) to resume from; the envs start fresh episodes. The saved
+    settings hold (a --total-timesteps other than the default raises the budget to it)"""
     log_every: int = 10_000
     """print a progress line every this many primitive steps"""
     run_dir: str = "runs"
@@ -154,14 +164,50 @@ class Discriminator(nn.Module):
         return self.head(self.encoder(obs)).gather(1, action[:, None]).squeeze(1)
 
 
+#: What a checkpoint of this script holds (`--resume` checks for each).
+CHECKPOINT_KEYS = ("agent", "discriminator", "optimizer", "disc_optimizer", "global_step", "rng",
+                   "args")
+
+
+def save_checkpoint(path: str, agent: Agent, discriminator: Discriminator, optimizer,
+                    disc_optimizer, global_step: int, args: Args,
+                    rng: np.random.Generator) -> None:
+    """Write a resumable checkpoint atomically (a kill mid-write keeps the previous one)."""
+    write_checkpoint(
+        {
+            "agent": agent.state_dict(),
+            "discriminator": discriminator.state_dict(),
+            "optimizer": optimizer.state_dict(),
+            "disc_optimizer": disc_optimizer.state_dict(),
+            "global_step": global_step,
+            "rng": rng_state(rng),
+            "args": json.dumps(asdict(args)),
+        },
+        path,
+    )
+
+
 def main(args: Args) -> dict | None:
     for name in ("num_envs", "num_steps", "num_minibatches", "update_epochs", "disc_minibatches"):
         if getattr(args, name) < 1:
             raise ValueError(f"--{name.replace('_', '-')} needs to be ≥ 1, "
                              f"actual value: {getattr(args, name)}")
-    env_name = args.env_id.replace("/", "-")
-    run_name = f"{env_name}__{args.exp_name}__{args.seed}__{int(time.time())}"
-    run_path = os.path.join(args.run_dir, run_name)
+    if args.resume:
+        path, checkpoint = load_checkpoint(args.resume, CHECKPOINT_KEYS, "gail.py")
+        saved = Args(**json.loads(checkpoint["args"]))
+        # The run continues as it was configured; only the budget may be raised, by an explicit
+        # --total-timesteps (a bare --resume finishes the run as it was set up).
+        if args.total_timesteps != Args.total_timesteps:
+            saved.total_timesteps = max(saved.total_timesteps, args.total_timesteps)
+        saved.resume = path
+        args = saved
+        run_path = os.path.dirname(os.path.abspath(path))
+        run_name = os.path.basename(run_path)
+    else:
+        checkpoint = None
+        env_name = args.env_id.replace("/", "-")
+        run_name = f"{env_name}__{args.exp_name}__{args.seed}__{int(time.time())}"
+        run_path = os.path.join(args.run_dir, run_name)
     os.makedirs(run_path, exist_ok=True)
     writer = SummaryWriter(run_path)
     writer.add_text(
@@ -209,14 +255,30 @@ def main(args: Args) -> dict | None:
     dones = torch.zeros((args.num_steps, args.num_envs), device=device)
     values = torch.zeros((args.num_steps, args.num_envs), device=device)
 
-    global_step, start_time = 0, time.time()
-    next_log = args.log_every
+    global_step = 0
+    if checkpoint is not None:
+        agent.load_state_dict(checkpoint["agent"])
+        discriminator.load_state_dict(checkpoint["discriminator"])
+        optimizer.load_state_dict(checkpoint["optimizer"])
+        disc_optimizer.load_state_dict(checkpoint["disc_optimizer"])
+        global_step = checkpoint["global_step"]
+        set_rng_state(checkpoint["rng"], rng)
+        print(f"resumed {run_name} at step {global_step}")
+    checkpoint_path = os.path.join(run_path, "checkpoint.pt")
+    next_checkpoint = (global_step // args.checkpoint_every + 1) * args.checkpoint_every \
+        if args.checkpoint_every > 0 else None
+
+    start_time, start_step = time.time(), global_step
+    next_log = (global_step // args.log_every + 1) * args.log_every
     recent_returns: list[float] = []
-    next_obs_np, _ = envs.reset(seed=args.seed)
+    # The env is reset with a seed that depends on where the run is, so a resumed run does not
+    # replay the episodes it already saw.
+    next_obs_np, _ = envs.reset(seed=args.seed + global_step)
     next_obs = torch.as_tensor(next_obs_np, device=device)
     next_done = torch.zeros(args.num_envs, device=device)
 
-    for iteration in range(1, num_iterations + 1):
+    # Each iteration is batch_size primitive steps, so a resumed run picks up at the next one.
+    for iteration in range(global_step // batch_size + 1, num_iterations + 1):
         if args.anneal_lr:
             optimizer.param_groups[0]["lr"] = \
                 (1.0 - (iteration - 1.0) / num_iterations) * args.learning_rate
@@ -328,7 +390,7 @@ def main(args: Args) -> dict | None:
                 nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
                 optimizer.step()
 
-        elapsed = max(time.time() - start_time, 1e-9)
+        sps = int((global_step - start_step) / max(time.time() - start_time, 1e-9))
         writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
         writer.add_scalar("losses/value_loss", v_loss.item(), global_step)
         writer.add_scalar("losses/policy_loss", pg_loss.item(), global_step)
@@ -338,16 +400,23 @@ def main(args: Args) -> dict | None:
         writer.add_scalar("losses/disc_loss", disc_loss.item(), global_step)
         writer.add_scalar("losses/disc_expert_accuracy", expert_acc.item(), global_step)
         writer.add_scalar("charts/gail_reward", rewards.mean().item(), global_step)
-        writer.add_scalar("charts/SPS", int(global_step / elapsed), global_step)
+        writer.add_scalar("charts/SPS", sps, global_step)
         if global_step >= next_log or iteration == num_iterations:
             next_log = (global_step // args.log_every + 1) * args.log_every
             mean_ret = f"{np.mean(recent_returns[-20:]):.1f}" if recent_returns else "n/a"
             print(f"step {global_step:>10,d}/{args.total_timesteps:,d}  "
-                  f"SPS {int(global_step / elapsed):>5d}  return(last 20) {mean_ret:>8s}  "
+                  f"SPS {sps:>5d}  return(last 20) {mean_ret:>8s}  "
                   f"disc loss {disc_loss.item():.3f}  gail reward {rewards.mean().item():.3f}",
                   flush=True)
+        if next_checkpoint is not None and global_step >= next_checkpoint:
+            save_checkpoint(checkpoint_path, agent, discriminator, optimizer, disc_optimizer,
+                            global_step, args, rng)
+            next_checkpoint = (global_step // args.checkpoint_every + 1) * args.checkpoint_every
 
     envs.close()
+    if args.checkpoint_every > 0:
+        save_checkpoint(checkpoint_path, agent, discriminator, optimizer, disc_optimizer,
+                        global_step, args, rng)
     if args.save_model:
         model_path = os.path.join(run_path, "model.pt")
         torch.save({"agent": agent.state_dict(), "discriminator": discriminator.state_dict()},

@@ -41,6 +41,7 @@ from torch.utils.tensorboard import SummaryWriter
 
 import routine_gym
 from routine_gym.atomic import atomic_write_text
+from routine_gym.checkpoint import load_checkpoint, write_checkpoint
 from routine_gym.demo import Demo, record_agent_demo, shipped_demo_path
 from routine_gym.envs.factory import (
     default_env_kwargs,
@@ -216,11 +217,14 @@ def _nonempty(library: RoutineLibrary, where: str, args: Args) -> RoutineLibrary
     return library
 
 
+#: What a checkpoint of this script holds (`--resume` checks for each).
+CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "rng", "args", "library")
+
+
 def save_checkpoint(path: str, agent, optimizer, global_step: int, iteration: int,
                     args: Args, library: RoutineLibrary | None) -> None:
     """Write a resumable checkpoint atomically (a kill mid-write keeps the previous one)."""
-    tmp = path + ".tmp"
-    torch.save(
+    write_checkpoint(
         {
             "model": agent.state_dict(),
             "optimizer": optimizer.state_dict(),
@@ -230,9 +234,8 @@ def save_checkpoint(path: str, agent, optimizer, global_step: int, iteration: in
             "args": json.dumps(asdict(args)),
             "library": json.dumps(library.to_dict()) if library is not None else "",
         },
-        tmp,
+        path,
     )
-    os.replace(tmp, path)
 
 
 def evaluate(agent: Agent, args: Args, library, device, episodes: int) -> dict:
@@ -302,10 +305,7 @@ def main(args: Args) -> None:
     if not args.reward_scale > 0:
         raise ValueError(f"--reward-scale needs to be > 0, actual value: {args.reward_scale}")
     if args.resume:
-        path = args.resume
-        if os.path.isdir(path):
-            path = os.path.join(path, "checkpoint.pt")
-        checkpoint = torch.load(path, weights_only=True)
+        path, checkpoint = load_checkpoint(args.resume, CHECKPOINT_KEYS, "rapl_a2c.py")
         saved = Args(**json.loads(checkpoint["args"]))
         # The run continues as it was configured. A --total-timesteps other than the default
         # sets a new budget: higher to train on, or at most the steps done to go straight to

@@ -54,6 +54,7 @@ from torch.distributions.categorical import Categorical
 from torch.utils.tensorboard import SummaryWriter
 
 import routine_gym
+from routine_gym.checkpoint import load_checkpoint, write_checkpoint
 from routine_gym.envs.factory import is_atari, make_env
 from routine_gym.imitation import (
     FrameReplayMemory,
@@ -153,11 +154,16 @@ class QNetwork(nn.Module):
         return self.head(self.encoder(obs))
 
 
+#: What a checkpoint of this script holds (`--resume` checks for each).
+CHECKPOINT_KEYS = ("model", "target", "optimizer", "global_step", "updates", "rng", "args",
+                   "library")
+
+
 def save_checkpoint(path: str, q_network: QNetwork, target_network: QNetwork, optimizer,
                     global_step: int, updates: int, args: Args,
                     library: RoutineLibrary | None, rng: np.random.Generator) -> None:
     """Write a resumable checkpoint atomically (a kill mid-write keeps the previous one)."""
-    torch.save(
+    write_checkpoint(
         {
             "model": q_network.state_dict(),
             "target": target_network.state_dict(),
@@ -168,9 +174,8 @@ def save_checkpoint(path: str, q_network: QNetwork, target_network: QNetwork, op
             "args": json.dumps(asdict(args)),
             "library": json.dumps(library.to_dict()) if library is not None else "",
         },
-        path + ".tmp",
+        path,
     )
-    os.replace(path + ".tmp", path)
 
 
 def check_args(args: Args) -> None:
@@ -197,12 +202,12 @@ def check_args(args: Args) -> None:
 def main(args: Args) -> dict | None:
     check_args(args)
     if args.resume:
-        path = os.path.join(args.resume, "checkpoint.pt") if os.path.isdir(args.resume) \
-            else args.resume
-        checkpoint = torch.load(path, weights_only=True)
+        path, checkpoint = load_checkpoint(args.resume, CHECKPOINT_KEYS, "rapl_sqil.py")
         saved = Args(**json.loads(checkpoint["args"]))
-        # The run continues as it was configured; only the budget may be raised.
-        saved.total_timesteps = max(saved.total_timesteps, args.total_timesteps)
+        # The run continues as it was configured; only the budget may be raised, by an explicit
+        # --total-timesteps (a bare --resume finishes the run as it was set up).
+        if args.total_timesteps != Args.total_timesteps:
+            saved.total_timesteps = max(saved.total_timesteps, args.total_timesteps)
         saved.resume = path
         args = saved
         run_name = os.path.basename(os.path.dirname(os.path.abspath(path)))
@@ -210,7 +215,9 @@ def main(args: Args) -> dict | None:
         checkpoint = None
         env_name = args.env_id.replace("/", "-")
         run_name = f"{env_name}__{args.exp_name}__{args.seed}__{int(time.time())}"
-    run_path = os.path.join(args.run_dir, run_name)
+    # A resumed run writes into its checkpoint's folder, wherever it is run from.
+    run_path = os.path.dirname(os.path.abspath(path)) if checkpoint is not None \
+        else os.path.join(args.run_dir, run_name)
     os.makedirs(run_path, exist_ok=True)
     writer = SummaryWriter(run_path)
     writer.add_text(

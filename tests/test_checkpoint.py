@@ -1,0 +1,30 @@
+"""The checkpoint files every training script writes and `--resume` reads."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from routine_gym.checkpoint import CHECKPOINT_NAME, load_checkpoint, write_checkpoint
+
+
+def test_a_checkpoint_round_trips_from_its_file_or_its_run_folder(tmp_path):
+    state = {"model": {"w": torch.arange(3.0)}, "global_step": 42, "args": "{}"}
+    write_checkpoint(state, tmp_path / CHECKPOINT_NAME)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [CHECKPOINT_NAME]  # no .tmp left
+    for resume in (tmp_path, tmp_path / CHECKPOINT_NAME):
+        path, loaded = load_checkpoint(resume, ["model", "global_step"], "test.py")
+        assert path == str(tmp_path / CHECKPOINT_NAME)
+        assert loaded["global_step"] == 42 and torch.equal(loaded["model"]["w"], torch.arange(3.0))
+
+
+def test_every_wrong_resume_path_names_the_path(tmp_path):
+    with pytest.raises(FileNotFoundError, match=f"--resume {tmp_path}: no checkpoint at"):
+        load_checkpoint(tmp_path, [], "test.py")
+    (tmp_path / "notes.txt").write_text("not a checkpoint")
+    with pytest.raises(ValueError, match="notes.txt is not a checkpoint torch can read"):
+        load_checkpoint(tmp_path / "notes.txt", [], "test.py")
+    write_checkpoint({"model": {}}, tmp_path / "other.pt")
+    with pytest.raises(ValueError, match="other.pt is not a checkpoint of test.py "
+                                         r"\(missing global_step, rng\)"):
+        load_checkpoint(tmp_path / "other.pt", ["model", "rng", "global_step"], "test.py")
