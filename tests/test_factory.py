@@ -302,12 +302,36 @@ def test_atari_wrappers_give_clear_errors():
 # -- other envs pass through ---------------------------------------------------------------
 
 
+UP = 2  # MiniQbert: from the top cube, UP jumps off the pyramid and costs a life
+
+
+def test_miniqbert_trains_like_qbert_a_life_loss_ends_the_training_episode():
+    env = make_env("MiniQbert-v0", seed=0, training=True)()
+    assert wrappers(env)[:2] == [EpisodicLife, RecordEpisodeStatistics]
+    env.reset(seed=0)
+    # 3 lives: the first two falls end training episodes, each reset takes one NOOP step ...
+    for _ in range(2):
+        _, reward, terminated, _, info = env.step(UP)
+        assert terminated and reward == 0 and "episode" not in info
+        env.reset()
+    # ... and the third ends the game, whose statistics count all 3 jumps and 2 NOOPs.
+    _, _, terminated, _, info = env.step(UP)
+    assert terminated and info["episode"]["l"] == 5 and info["episode"]["r"] == 0
+    env.close()
+
+    env = make_env("MiniQbert-v0", seed=0, training=False)()  # evaluation plays the full game
+    env.reset(seed=0)
+    assert [env.step(UP)[2] for _ in range(3)] == [False, False, True]
+    env.close()
+
+
 @pytest.mark.parametrize("env_id", ["CartPole-v1", "MiniQbert-v0"])
 def test_non_atari_envs_pass_through_with_episode_statistics(env_id):
     raw = gym.make(env_id)
-    assert preprocess(raw, env_id) is raw
+    if env_id == "CartPole-v1":
+        assert preprocess(raw, env_id) is raw
     assert preprocess(raw, env_id, training=False) is raw
-    env = make_env(env_id, seed=0)()
+    env = make_env(env_id, seed=0, training=False)()
     assert type(env) is RecordEpisodeStatistics
     assert env.observation_space == raw.observation_space
     env.reset(seed=0)

@@ -57,26 +57,32 @@ class NoopReset(gym.Wrapper, gym.utils.RecordConstructorArgs):
 class EpisodicLife(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """A life loss terminates the training episode; the game itself goes on until game over.
 
-    `reset` after a life loss only takes a NOOP step, so the agent sees a short episode per
-    life (it learns that dying is final) while the game, and an inner
-    `RecordEpisodeStatistics`, run to the real game over.
+    `reset` after a life loss only takes a NOOP step (action 0), so the agent sees a short
+    episode per life (it learns that dying is final) while the game, and an inner
+    `RecordEpisodeStatistics`, run to the real game over. Lives are read from ALE
+    (`ale.lives()`) or from the game's own `lives` property (MiniQbert).
     """
 
     def __init__(self, env: gym.Env) -> None:
-        if not hasattr(env.unwrapped, "ale"):
+        unwrapped = env.unwrapped
+        if not hasattr(unwrapped, "ale") and not isinstance(getattr(unwrapped, "lives", None), int):
             raise ValueError(
-                f"EpisodicLife needs an ALE env (it reads ale.lives()), "
-                f"got {type(env.unwrapped).__name__}"
+                f"EpisodicLife needs a game that counts lives (ALE's ale.lives() or a `lives` "
+                f"property), got {type(unwrapped).__name__}"
             )
         gym.utils.RecordConstructorArgs.__init__(self)
         gym.Wrapper.__init__(self, env)
         self.lives = 0
         self.game_over = True
 
+    def _lives(self) -> int:
+        unwrapped = self.env.unwrapped
+        return unwrapped.ale.lives() if hasattr(unwrapped, "ale") else unwrapped.lives
+
     def step(self, action):
         obs, reward, terminated, truncated, info = self.env.step(action)
         self.game_over = terminated or truncated
-        lives = self.env.unwrapped.ale.lives()
+        lives = self._lives()
         if 0 < lives < self.lives:
             terminated = True
         self.lives = lives
@@ -90,7 +96,7 @@ class EpisodicLife(gym.Wrapper, gym.utils.RecordConstructorArgs):
             if terminated or truncated:
                 obs, info = self.env.reset(options=options)
         self.game_over = False
-        self.lives = self.env.unwrapped.ale.lives()
+        self.lives = self._lives()
         return obs, info
 
 

@@ -41,6 +41,7 @@ from routine_gym.envs.atari import (
 __all__ = [
     "default_env_kwargs",
     "is_atari",
+    "is_miniqbert",
     "is_procgen",
     "make_env",
     "make_primitive_env",
@@ -49,6 +50,10 @@ __all__ = [
 ]
 
 COINRUN_ID = "procgen/CoinRun-v0"
+
+
+def is_miniqbert(env_id: str) -> bool:
+    return env_id.split("/")[-1].startswith("MiniQbert")
 
 
 def is_procgen(env_id: str) -> bool:
@@ -71,7 +76,15 @@ def make_primitive_env(env_id: str, render_mode: str | None = None, **kwargs: An
 
 
 def preprocess(env: gym.Env, env_id: str, *, training: bool = True) -> gym.Env:
-    """Add the agent's standard preprocessing on top of a primitive env."""
+    """Add the agent's standard preprocessing on top of a primitive env.
+
+    Atari: no-op starts, FIRE, 84×84 grey 4-stacks; in training a life loss also ends the
+    episode and rewards are sign-clipped. MiniQbert, a Qbert in miniature, is trained as Qbert
+    is: a life loss ends the training episode (otherwise falling off is a free teleport back to
+    the top, and agents learn to spend lives on it until the last one runs out).
+    """
+    if is_miniqbert(env_id):
+        return EpisodicLife(env) if training else env
     if not is_atari(env_id):
         return env
     env = NoopReset(env, noop_max=30)
@@ -115,7 +128,8 @@ def make_env(
         seed: the vector env's seed; each thunk seeds its action space with `seed + idx`.
         idx: the env's index in the vector env (video is captured for env 0).
         routines: the routines to add as actions (a `RoutineLibrary` or action sequences).
-        training: training-only Atari wrappers (life loss ends the episode, reward clipping).
+        training: training-only wrappers (Atari and MiniQbert: a life loss ends the episode;
+            Atari: reward clipping).
         record_observations: let the routine wrapper return the intermediate observations.
         env_kwargs: extra `gym.make` keyword arguments (e.g. `num_levels` for CoinRun).
         capture_video: record videos of env 0 into `videos/{run_name}`.
