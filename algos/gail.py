@@ -41,7 +41,7 @@ from torch.distributions.categorical import Categorical
 from torch.utils.tensorboard import SummaryWriter
 
 import routine_gym
-from routine_gym.checkpoint import load_checkpoint, write_checkpoint
+from routine_gym.checkpoint import resume_settings, write_checkpoint
 from routine_gym.envs.factory import make_env
 from routine_gym.imitation import (
     agent_view_states,
@@ -193,15 +193,8 @@ def main(args: Args) -> dict | None:
             raise ValueError(f"--{name.replace('_', '-')} needs to be ≥ 1, "
                              f"actual value: {getattr(args, name)}")
     if args.resume:
-        path, checkpoint = load_checkpoint(args.resume, CHECKPOINT_KEYS, "gail.py")
-        saved = Args(**json.loads(checkpoint["args"]))
-        # The run continues as it was configured; only the budget may be raised, by an explicit
-        # --total-timesteps (a bare --resume finishes the run as it was set up).
-        if args.total_timesteps != Args.total_timesteps:
-            saved.total_timesteps = max(saved.total_timesteps, args.total_timesteps)
-        saved.resume = path
-        args = saved
-        run_path = os.path.dirname(os.path.abspath(path))
+        # The saved settings; an explicit --total-timesteps may raise the budget.
+        args, checkpoint, run_path = resume_settings(args, CHECKPOINT_KEYS, "gail.py")
         run_name = os.path.basename(run_path)
     else:
         checkpoint = None

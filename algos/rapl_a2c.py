@@ -41,7 +41,7 @@ from torch.utils.tensorboard import SummaryWriter
 
 import routine_gym
 from routine_gym.atomic import atomic_write_text
-from routine_gym.checkpoint import load_checkpoint, write_checkpoint
+from routine_gym.checkpoint import resume_settings, write_checkpoint
 from routine_gym.demo import Demo, record_agent_demo, shipped_demo_path
 from routine_gym.envs.factory import (
     default_env_kwargs,
@@ -305,23 +305,16 @@ def main(args: Args) -> None:
     if not args.reward_scale > 0:
         raise ValueError(f"--reward-scale needs to be > 0, actual value: {args.reward_scale}")
     if args.resume:
-        path, checkpoint = load_checkpoint(args.resume, CHECKPOINT_KEYS, "rapl_a2c.py")
-        saved = Args(**json.loads(checkpoint["args"]))
-        # The run continues as it was configured. A --total-timesteps other than the default
-        # sets a new budget: higher to train on, or at most the steps done to go straight to
-        # evaluation and demo recording (a bare --resume keeps the saved budget).
-        if args.total_timesteps != Args.__dataclass_fields__["total_timesteps"].default:
-            saved.total_timesteps = args.total_timesteps
-        saved.resume = path
-        args = saved
-        run_name = os.path.basename(os.path.dirname(os.path.abspath(path)))
+        # The saved settings. An explicit --total-timesteps sets a new budget: higher to train
+        # on, or at most the steps done to go straight to evaluation and demo recording.
+        args, checkpoint, run_path = resume_settings(args, CHECKPOINT_KEYS, "rapl_a2c.py",
+                                                     lower_budget=True)
+        run_name = os.path.basename(run_path)
     else:
         checkpoint = None
         env_name = args.env_id.replace("/", "-")
         run_name = f"{env_name}__{args.exp_name}__{args.seed}__{int(time.time())}"
-    run_path = os.path.dirname(os.path.abspath(path)) if checkpoint else os.path.join(
-        args.run_dir, run_name
-    )
+        run_path = os.path.join(args.run_dir, run_name)
     os.makedirs(run_path, exist_ok=True)
     writer = SummaryWriter(run_path)
     writer.add_text(

@@ -54,7 +54,7 @@ from torch.distributions.categorical import Categorical
 from torch.utils.tensorboard import SummaryWriter
 
 import routine_gym
-from routine_gym.checkpoint import load_checkpoint, write_checkpoint
+from routine_gym.checkpoint import resume_settings, write_checkpoint
 from routine_gym.envs.factory import is_atari, make_env
 from routine_gym.imitation import (
     FrameReplayMemory,
@@ -202,22 +202,14 @@ def check_args(args: Args) -> None:
 def main(args: Args) -> dict | None:
     check_args(args)
     if args.resume:
-        path, checkpoint = load_checkpoint(args.resume, CHECKPOINT_KEYS, "rapl_sqil.py")
-        saved = Args(**json.loads(checkpoint["args"]))
-        # The run continues as it was configured; only the budget may be raised, by an explicit
-        # --total-timesteps (a bare --resume finishes the run as it was set up).
-        if args.total_timesteps != Args.total_timesteps:
-            saved.total_timesteps = max(saved.total_timesteps, args.total_timesteps)
-        saved.resume = path
-        args = saved
-        run_name = os.path.basename(os.path.dirname(os.path.abspath(path)))
+        # The saved settings; an explicit --total-timesteps may raise the budget.
+        args, checkpoint, run_path = resume_settings(args, CHECKPOINT_KEYS, "rapl_sqil.py")
+        run_name = os.path.basename(run_path)
     else:
         checkpoint = None
         env_name = args.env_id.replace("/", "-")
         run_name = f"{env_name}__{args.exp_name}__{args.seed}__{int(time.time())}"
-    # A resumed run writes into its checkpoint's folder, wherever it is run from.
-    run_path = os.path.dirname(os.path.abspath(path)) if checkpoint is not None \
-        else os.path.join(args.run_dir, run_name)
+        run_path = os.path.join(args.run_dir, run_name)
     os.makedirs(run_path, exist_ok=True)
     writer = SummaryWriter(run_path)
     writer.add_text(

@@ -2,19 +2,21 @@
 
 Every script in `algos/` saves a dict of tensors, numbers and strings (its `Args` as JSON, RNG
 states from :mod:`routine_gym.rng`) with :func:`write_checkpoint`, and `--resume` reads it back
-with :func:`load_checkpoint`, which accepts a checkpoint file or the run folder holding one and
-turns every way of getting it wrong into an error that names the path.
+with :func:`resume_settings`. Its :func:`load_checkpoint` accepts a checkpoint file or the run
+folder holding one and turns every way of getting it wrong into an error that names the path.
 """
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Iterable
+from dataclasses import fields
 from typing import Any
 
 import torch
 
-__all__ = ["CHECKPOINT_NAME", "load_checkpoint", "write_checkpoint"]
+__all__ = ["CHECKPOINT_NAME", "load_checkpoint", "resume_settings", "write_checkpoint"]
 
 #: The file name of a run's checkpoint inside its run folder.
 CHECKPOINT_NAME = "checkpoint.pt"
@@ -47,3 +49,23 @@ def load_checkpoint(resume: str | os.PathLike, keys: Iterable[str],
         raise ValueError(f"--resume {path} is not a checkpoint of {script} "
                          f"(missing {', '.join(sorted(missing))})")
     return path, checkpoint
+
+
+def resume_settings(args: Any, keys: Iterable[str], script: str, *,
+                    lower_budget: bool = False) -> tuple[Any, dict[str, Any], str]:
+    """For `--resume`: the run's saved `Args`, its checkpoint and its run folder.
+
+    The run continues as it was configured; a `--total-timesteps` other than the default sets
+    a new budget. By default the budget may only be raised (a lower one finishes the run as it
+    was set up); with `lower_budget=True` a lower one is taken as it is, so a script can go
+    straight to evaluation. A bare `--resume` keeps the saved budget. The run folder is the
+    checkpoint's own, wherever the script is run from.
+    """
+    path, checkpoint = load_checkpoint(args.resume, keys, script)
+    saved = type(args)(**json.loads(checkpoint["args"]))
+    default = next(f.default for f in fields(args) if f.name == "total_timesteps")
+    if args.total_timesteps != default:
+        saved.total_timesteps = args.total_timesteps if lower_budget \
+            else max(saved.total_timesteps, args.total_timesteps)
+    saved.resume = path
+    return saved, checkpoint, os.path.dirname(os.path.abspath(path))

@@ -28,3 +28,34 @@ def test_every_wrong_resume_path_names_the_path(tmp_path):
     with pytest.raises(ValueError, match="other.pt is not a checkpoint of test.py "
                                          r"\(missing global_step, rng\)"):
         load_checkpoint(tmp_path / "other.pt", ["model", "rng", "global_step"], "test.py")
+
+
+def test_resume_settings_keep_the_saved_run_and_apply_the_budget_rule(tmp_path):
+    import dataclasses
+    import json
+
+    from routine_gym.checkpoint import resume_settings
+
+    @dataclasses.dataclass
+    class Args:
+        total_timesteps: int = 1000
+        seed: int = 1
+        resume: str | None = None
+
+    run = tmp_path / "runs" / "my_run"
+    run.mkdir(parents=True)
+    saved = json.dumps(dataclasses.asdict(Args(total_timesteps=300, seed=7)))
+    write_checkpoint({"args": saved, "step": 200}, run / CHECKPOINT_NAME)
+
+    def resume(total_timesteps: int, **kwargs) -> Args:
+        args, checkpoint, run_path = resume_settings(
+            Args(total_timesteps=total_timesteps, seed=99, resume=str(run)), ["step"], "x.py",
+            **kwargs)
+        assert checkpoint["step"] == 200 and run_path == str(run)
+        assert args.seed == 7 and args.resume == str(run / CHECKPOINT_NAME)  # saved settings
+        return args
+
+    assert resume(1000).total_timesteps == 300  # the default: a bare --resume keeps 300
+    assert resume(500).total_timesteps == 500  # raised
+    assert resume(250).total_timesteps == 300  # never lowered ...
+    assert resume(250, lower_budget=True).total_timesteps == 250  # ... unless the script says
