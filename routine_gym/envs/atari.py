@@ -31,6 +31,12 @@ def _action_meanings(env: gym.Env) -> list[str]:
     return list(unwrapped.get_action_meanings())
 
 
+def _lives(env: gym.Env) -> int:
+    """Lives left: ALE's `ale.lives()`, else the game's own `lives` property (MiniQbert)."""
+    unwrapped = env.unwrapped
+    return unwrapped.ale.lives() if hasattr(unwrapped, "ale") else unwrapped.lives
+
+
 class NoopReset(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """After a reset, take a random number (1..noop_max) of NOOP steps, for varied starts."""
 
@@ -75,14 +81,10 @@ class EpisodicLife(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.lives = 0
         self.game_over = True
 
-    def _lives(self) -> int:
-        unwrapped = self.env.unwrapped
-        return unwrapped.ale.lives() if hasattr(unwrapped, "ale") else unwrapped.lives
-
     def step(self, action):
         obs, reward, terminated, truncated, info = self.env.step(action)
         self.game_over = terminated or truncated
-        lives = self._lives()
+        lives = _lives(self.env)
         if 0 < lives < self.lives:
             terminated = True
         self.lives = lives
@@ -96,7 +98,7 @@ class EpisodicLife(gym.Wrapper, gym.utils.RecordConstructorArgs):
             if terminated or truncated:
                 obs, info = self.env.reset(options=options)
         self.game_over = False
-        self.lives = self._lives()
+        self.lives = _lives(self.env)
         return obs, info
 
 
@@ -144,19 +146,19 @@ class FireOnLifeLoss(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         obs, info = self.env.reset(seed=seed, options=options)
-        self.lives = self.env.unwrapped.ale.lives()
+        self.lives = _lives(self.env)
         return obs, info
 
     def step(self, action):
         obs, reward, terminated, truncated, info = self.env.step(action)
-        lives = self.env.unwrapped.ale.lives()
+        lives = _lives(self.env)
         if 0 < lives < self.lives:
             for extra in (0, self.fire):
                 if terminated or truncated:
                     break
                 obs, r, terminated, truncated, info = self.env.step(extra)
                 reward += r
-        self.lives = self.env.unwrapped.ale.lives()
+        self.lives = _lives(self.env)
         return obs, reward, terminated, truncated, info
 
 
