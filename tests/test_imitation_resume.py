@@ -4,31 +4,18 @@ is named."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import re
-import sys
 import warnings
 from pathlib import Path
 
 import pytest
 import torch
+from script_loader import load_script
 
 import routine_gym  # noqa: F401  (registers MiniQbert-v0)
 
-ALGOS = Path(__file__).resolve().parent.parent / "algos"
-
-
-def load_script(name: str):
-    """Import `algos/{name}.py` as a module (the scripts are files, not a package)."""
-    spec = importlib.util.spec_from_file_location(f"algos_{name}_resume", ALGOS / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up while the file runs
-    spec.loader.exec_module(module)
-    return module
-
-
-SCRIPTS = {"bc": load_script("bc"), "gail": load_script("gail")}
+SCRIPTS = {name: load_script(name, f"algos_{name}_resume") for name in ("bc", "gail")}
 # Tiny budgets on MiniQbert; GAIL's iterations are 2 envs × 16 steps = 32 primitive steps.
 TINY = {
     "bc": dict(batch_size=8, checkpoint_every=20),

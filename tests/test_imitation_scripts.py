@@ -3,34 +3,20 @@ shared evaluation, and every kind of bad input the imitation scripts must name."
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
-import sys
 import warnings
 
 import gymnasium as gym
 import numpy as np
 import pytest
+from script_loader import load_script
 
 import routine_gym  # noqa: F401  (registers MiniQbert-v0 and procgen/CoinRun-v0)
 from routine_gym.demo import Demo, record_agent_demo, shipped_demo_path
 from routine_gym.envs.factory import default_env_kwargs, preprocess
 from routine_gym.imitation import check_demo_env, evaluate_imitation, load_routine_library
 from routine_gym.library import RoutineLibrary
-
-ALGOS = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "algos")
-
-
-def load_script(name: str):
-    """Import `algos/{name}.py` as a module (the scripts are files, not a package)."""
-    path = os.path.join(ALGOS, f"{name}.py")
-    spec = importlib.util.spec_from_file_location(f"algos_{name}", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up while the file runs
-    spec.loader.exec_module(module)
-    return module
-
 
 SQIL, BC, GAIL = (load_script(n) for n in ("rapl_sqil", "bc", "gail"))
 

@@ -7,7 +7,6 @@ budgets (2 envs, a few hundred primitive steps); only the kill test starts a sub
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import signal
 import subprocess
@@ -18,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from script_loader import load_script
 
 import routine_gym  # noqa: F401  (registers MiniQbert, CoinRun and the ALE envs)
 from routine_gym.demo import DEMO_SUITE, Demo, record_agent_demo, replay, shipped_demo_path
@@ -34,15 +34,10 @@ F, T = False, True
 
 
 @pytest.fixture(scope="module")
-def rapl_a2c(repo_root):
+def rapl_a2c():
     """The script as a module."""
-    path = repo_root / "algos" / "rapl_a2c.py"
-    spec = importlib.util.spec_from_file_location("rapl_a2c", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses looks the module up while building Args
-    spec.loader.exec_module(module)
-    yield module
-    sys.modules.pop(spec.name, None)
+    yield load_script("rapl_a2c", "rapl_a2c")
+    sys.modules.pop("rapl_a2c", None)
 
 
 def random_policy(num_actions: int, seed: int = 0):
