@@ -55,7 +55,13 @@ from routine_gym.library import RoutineLibrary
 from routine_gym.metrics import human_normalized_score
 from routine_gym.mining import make_proposer
 from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.returns import decision_returns, primitive_returns, routine_reward_and_discount
+from routine_gym.returns import (
+    decision_returns,
+    inner_states_and_targets,
+    macro_reward_and_discount,
+    primitive_returns,
+    routine_reward_and_discount,
+)
 from routine_gym.rng import rng_state, set_rng_state
 
 
@@ -448,8 +454,7 @@ def main(args: Args) -> None:
         if args.mode == "rapl":
             rewards, discounts = routine_reward_and_discount(step_rewards, lengths, args.gamma)
         else:
-            rewards = (step_rewards * (np.arange(max_len)[:, None] < lengths[:, None])).sum(1)
-            discounts = np.full((n, e), args.gamma)
+            rewards, discounts = macro_reward_and_discount(step_rewards, lengths, args.gamma)
         with torch.no_grad():
             bootstrap = agent.get_value(torch.as_tensor(next_obs, device=device)).cpu().numpy()
         returns = decision_returns(rewards, discounts, terminated, truncated, final_values,
@@ -466,11 +471,10 @@ def main(args: Args) -> None:
             # A_prim at the primitive states inside routines (step j ≥ 1 of a decision).
             prim = primitive_returns(step_rewards, lengths, terminated, truncated, final_values,
                                      bootstrap, args.gamma)
-            inside = np.arange(1, max_len)[None, :, None] < lengths[:, None, :]  # [n, L-1, e]
-            if inside.any():
-                states = torch.as_tensor(inner_obs[:, : max_len - 1][inside], device=device)
-                targets = torch.as_tensor(prim[:, 1:][inside], dtype=torch.float32,
-                                          device=device)
+            inner_states, prim_targets = inner_states_and_targets(inner_obs, prim, lengths)
+            if len(prim_targets):
+                states = torch.as_tensor(inner_states, device=device)
+                targets = torch.as_tensor(prim_targets, dtype=torch.float32, device=device)
                 prim_loss = (targets - agent.get_value(states)).pow(2).mean()
 
         loss = pg_loss - args.ent_coef * entropy_loss \
@@ -533,18 +537,15 @@ def main(args: Args) -> None:
             return int(action[0])
 
         def wrap(env):
-            env = preprocess(gym.wrappers.RecordEpisodeStatistics(env), args.env_id,
-                             training=False)
-            if library is not None:
-                from routine_gym.wrapper import RoutineActionWrapper
+            return preprocess(gym.wrappers.RecordEpisodeStatistics(env), args.env_id,
+                              training=False)
 
-                env = RoutineActionWrapper(env, library, record_observations=False)
-            return env
-
+        # The demo marks the agent's decisions (each step of a chosen routine included) apart
+        # from the steps the preprocessing injects (no-op start, FIRE, served lives).
         demo = record_agent_demo(
             args.env_id, policy, num_episodes=args.demo_episodes, seed=args.seed + 20_000,
             env_kwargs={**default_env_kwargs(args.env_id), **train_env_kwargs(args)},
-            wrap_env=wrap,
+            wrap_env=wrap, routines=library,
             meta={"trained_steps": global_step, "command": " ".join(sys.argv),
                   "mode": args.mode, "run": run_name},
         )

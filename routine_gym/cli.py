@@ -3,6 +3,7 @@
     routine-gym mine demos/MiniQbert-v0.npz --num-routines 3 --out routines.json
     routine-gym show routines.json
     routine-gym replay demos/MiniQbert-v0.npz
+    routine-gym upgrade old_demo.npz --out new_demo.npz
     routine-gym show-demos
     routine-gym record MiniQbert-v0 --policy expert --episodes 10 --out my_demo.npz
     routine-gym play ALE/Qbert-v5 --out my_qbert.npz
@@ -85,14 +86,62 @@ def cmd_show(args: argparse.Namespace) -> int:
             print(f"  {key}: {meta[key]}")
     print(f"  episodes: {demo.num_episodes}, actions: {len(demo.actions)}, "
           f"observations: {'yes' if demo.observations is not None else 'no'}")
+    print(f"  steps: {demo.num_decisions} decided by the demonstrator, {demo.num_injected} "
+          f"injected by wrappers"
+          + (f" ({', '.join(meta['recorded_under'])})" if meta.get("recorded_under") else ""))
+    if _file_version(path) == 1:
+        print(f"  format version 1 (no decisions recorded: every step counts as one); "
+              f"`routine-gym upgrade {path}` marks the injected steps")
     meanings = meta.get("action_meanings")
     if meanings:
-        counts = np.bincount(demo.actions, minlength=len(meanings))
+        counts = np.bincount(demo.actions[demo.decisions], minlength=len(meanings))
         usage = ", ".join(f"{m}={c}" for m, c in zip(meanings, counts, strict=True) if c)
-        print(f"  action counts: {usage}")
-        head = demo.episode_actions()[0][: args.head]
-        print(f"  first actions: {routine_name(head.tolist(), meanings)}")
+        print(f"  decided action counts: {usage}")
+        head = demo.decision_actions()[0][: args.head]
+        print(f"  first decided actions: {routine_name(head.tolist(), meanings)}")
     return 0
+
+
+def _file_version(path: Path) -> int:
+    from routine_gym.demo import demo_file_version
+
+    return demo_file_version(path)
+
+
+def cmd_upgrade(args: argparse.Namespace) -> int:
+    from routine_gym.demo import DEMO_VERSION, DemoReplayError, upgrade_demo
+    from routine_gym.envs.factory import recording_stacks
+
+    demo = _load_demo(args.demo)
+    version = _file_version(Path(args.demo))
+    out = args.out or args.demo
+    if version >= DEMO_VERSION:
+        print(f"{args.demo} is already format version {version}; nothing to upgrade")
+        return 0
+    if demo.env_id is None:
+        raise CLIError(f"{args.demo} has no env id, so it cannot be replayed to upgrade it")
+    stacks = recording_stacks(demo.env_id)
+    if args.preprocessing != "auto":
+        if args.preprocessing not in stacks:
+            raise CLIError(f"--preprocessing {args.preprocessing} does not apply to "
+                           f"{demo.env_id}; choose from {', '.join(stacks)}")
+        stacks = {args.preprocessing: stacks[args.preprocessing]}
+    failures = []
+    for name, wrap in stacks.items():
+        try:
+            upgraded = upgrade_demo(demo, None if name == "raw" else wrap)
+        except DemoReplayError as exc:
+            failures.append(f"{name}: {exc}")
+            continue
+        upgraded.meta["upgraded_from_version"] = version
+        upgraded.meta["recorded_under_stack"] = name
+        upgraded.save(out, include_observations=demo.has_observations)
+        print(f"{args.demo}: recorded under the '{name}' preprocessing; "
+              f"{upgraded.num_decisions} decided and {upgraded.num_injected} injected steps; "
+              f"saved as version {DEMO_VERSION} to {out}")
+        return 0
+    raise CLIError(f"{args.demo} replays under none of the preprocessing stacks, so its injected "
+                   "steps cannot be re-derived; nothing written: " + " | ".join(failures))
 
 
 def cmd_show_demos(args: argparse.Namespace) -> int:
@@ -117,8 +166,8 @@ def cmd_show_demos(args: argparse.Namespace) -> int:
         if "candidates" in meta:
             source += f", best of {len(meta['candidates']['seeds'])} episodes"
         print(f"\n{demo.env_id}  ({path.name}, {path.stat().st_size / 1024:.1f} kB)")
-        print(f"  score {demo.score:g}, {len(demo.actions)} steps, "
-              f"{demo.num_episodes} episode(s); {source}")
+        print(f"  score {demo.score:g}, {len(demo.actions)} steps ({demo.num_decisions} "
+              f"decided, {demo.num_injected} injected), {demo.num_episodes} episode(s); {source}")
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             library = miner.mine(demo)
@@ -280,6 +329,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("demo", help="demo file (.npz)")
     p.add_argument("--episode", type=int, default=None, help="replay only this episode")
     p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("upgrade", help="rewrite a version-1 demo as version 2",
+                       description="Replay a version-1 demo through the preprocessing it was "
+                       "recorded under and mark which steps the demonstrator decided and which "
+                       "the preprocessing injected (no-op start, FIRE, served lives). Refuses "
+                       "when the replay diverges; nothing is written then.")
+    p.add_argument("demo", help="demo file (.npz), format version 1")
+    p.add_argument("--out", "-o", default=None, help="write here (default: replace DEMO)")
+    p.add_argument("--preprocessing", default="auto",
+                   help="the stack it was recorded under: agent (the evaluation view that "
+                   "rapl_a2c.py --record-demo uses), agent-0.1 (Atari, without served lives), "
+                   "raw (CLI record and play: every step a decision), or auto: the first of "
+                   "these that replays exactly (auto)")
+    p.set_defaults(func=cmd_upgrade)
 
     p = sub.add_parser("record", help="record an agent's demo (best of N episodes)",
                        description="Run a policy for N episodes and save the best one.")

@@ -12,7 +12,23 @@ preprocessing wrappers (frame skip, frame stack, resizing, ...) is recorded by p
 recorder *under* the preprocessing: `AtariPreprocessing(DemoRecorder(gym.make(...)))`, or
 `record_agent_demo(..., wrap_env=...)`; the recorder then sees every primitive step.
 
-File format (version 1)
+Decisions and injected steps
+----------------------------
+Not every recorded action is one the demonstrator chose. The agent's preprocessing also steps
+the primitive env: Atari's random no-op start, the FIRE of a fire reset, the NOOP and FIRE
+that serve a new life. Those steps are environment plumbing, not skill (a 25-step no-op start
+alone would make `NOOP×4` a "most frequent routine"), so a demo marks each step as a
+*decision* (the demonstrator's policy, a person's key, each primitive of a routine it chose)
+or as *injected* (a wrapper below the agent took it). The recorder learns which is which from
+the agent-facing top of the stack: a `DecisionMarker` there marks the one primitive step each
+of its `step` calls forwards; every other step (those taken inside a `reset`, or a second
+step a wrapper takes within the same call) is injected. A recorder with no marker over it is
+the top itself, and every step is a decision. Everything that reads a demo's actions (the
+miners, SQIL's demo buffer, BC and GAIL pairs, the alignment score) uses the decisions only,
+and an injected step splits the sequence as an episode boundary does
+(`Demo.decision_segments`).
+
+File format (version 2)
 -----------------------
 One compressed NumPy archive (`.npz`, written with `np.savez_compressed` and replaced
 atomically). It holds no pickles: every member is a plain numeric or unicode array, and it loads
@@ -24,6 +40,8 @@ with `np.load(path, allow_pickle=False)`. With T steps in E episodes:
 | `rewards`            | (T,)           | float64 | reward of each step                           |
 | `terminated`         | (T,)           | bool    | `terminated` flag of each step                |
 | `truncated`          | (T,)           | bool    | `truncated` flag of each step                 |
+| `decisions`          | (T,)           | bool    | True: the demonstrator chose the action;      |
+|                      |                |         | False: a wrapper injected it (version 2)      |
 | `episode_lengths`    | (E,)           | int64   | steps per episode, each ≥ 1, summing to T     |
 | `observations`       | (T, *obs)      | env's   | optional: the observation before each action  |
 | `final_observations` | (E, *obs)      | env's   | optional: the observation after the last step |
@@ -36,15 +54,19 @@ observation after episode `e`'s last action. Only an episode's last step may car
 who closed the window). `observations` and `final_observations` are stored together or not at
 all.
 
-`meta` keys: `format` (`"routine-gym/demo"`), `version` (`1`), `env_id` (or null for an env
+`meta` keys: `format` (`"routine-gym/demo"`), `version` (`2`), `env_id` (or null for an env
 not made by `gym.make`), `env_kwargs` (the keyword arguments of `gym.make`, without
 `render_mode`), `max_episode_steps` (the time limit `gym.make` applied, or null), `seeds` (the
 reset seed of each episode), `num_actions`, `action_meanings`, `scores` (undiscounted return of
 each episode, checked against `rewards` on load), `source` (`"agent"`, `"human"`, `"random"`,
 ...), `created` (ISO 8601, UTC) and `routine_gym_version`; any other key is provenance that is
-kept as is (`candidates` lists every episode `record_agent_demo` chose the best from). A tuple
+kept as is (`candidates` lists every episode `record_agent_demo` chose the best from;
+`recorded_under` names the wrappers between the recorder and the decision marker). A tuple
 anywhere in `meta` is written as `{"__tuple__": [...]}` so that it loads back as a tuple.
 
+Version 1 (the same without `decisions`) still loads, with every step a decision;
+`routine-gym upgrade DEMO` (`upgrade_demo`) rewrites it as version 2 by replaying it through
+the preprocessing it was recorded under, which re-derives the injected steps from the seeds.
 Loading checks everything above and names the file and the problem in a `ValueError`.
 """
 
@@ -70,11 +92,14 @@ import numpy as np
 from routine_gym.atomic import atomic_write_bytes
 
 DEMO_FORMAT = "routine-gym/demo"
-DEMO_VERSION = 1
+DEMO_VERSION = 2
+#: File versions `Demo.load` reads (version 1 has no `decisions`: every step is a decision).
+READABLE_VERSIONS = (1, 2)
 
 _STEP_ARRAYS = ("actions", "rewards", "terminated", "truncated")
 _REQUIRED_ARRAYS = (*_STEP_ARRAYS, "episode_lengths", "meta")
 _OBS_ARRAYS = ("observations", "final_observations")
+_V2_ARRAYS = ("decisions",)
 # Seeds drawn for an unseeded reset stay below 2**31 so that every env accepts them.
 _MAX_DRAWN_SEED = 2**31 - 1
 
@@ -140,6 +165,8 @@ class DemoEpisode:
     """The observation after the last action, or None."""
     seed: int | None
     score: float
+    decisions: np.ndarray | None = None
+    """(T_e,) bool: True where the demonstrator chose the action (None: all of them)."""
 
     def __len__(self) -> int:
         return len(self.actions)
@@ -176,6 +203,8 @@ class Demo:
     observations: np.ndarray | None = None
     final_observations: np.ndarray | None = None
     meta: dict[str, Any] = field(default_factory=dict)
+    decisions: np.ndarray | None = None
+    """(T,) bool: True where the demonstrator chose the action; None makes every step one."""
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__  # frozen: normalised values are written once, here
@@ -189,6 +218,9 @@ class Demo:
         set_(self, "rewards", self._float_array("rewards", self.rewards, num_steps))
         for name in ("terminated", "truncated"):
             set_(self, name, self._bool_array(name, getattr(self, name), num_steps))
+        decisions = np.ones(num_steps, dtype=np.bool_) if self.decisions is None else (
+            self._bool_array("decisions", self.decisions, num_steps))
+        set_(self, "decisions", decisions)
 
         lengths = np.asarray(self.episode_lengths)
         if lengths.ndim != 1 or (lengths.size and lengths.dtype.kind not in "iu"):
@@ -425,11 +457,73 @@ class Demo:
             ),
             seed=self.meta["seeds"][i],
             score=float(self.meta["scores"][i]),
+            decisions=self.decisions[sl],
         )
 
     def episode_actions(self) -> list[np.ndarray]:
-        """The action sequence of each episode: what `SequiturMiner` consumes."""
+        """Every recorded action of each episode, injected steps included (for replay)."""
         return np.split(self.actions, np.cumsum(self.episode_lengths)[:-1])
+
+    @property
+    def num_decisions(self) -> int:
+        """Steps the demonstrator decided."""
+        return int(self.decisions.sum())
+
+    @property
+    def num_injected(self) -> int:
+        """Steps a wrapper below the demonstrator injected."""
+        return len(self) - self.num_decisions
+
+    def decision_actions(self) -> list[np.ndarray]:
+        """The demonstrator's actions of each episode, injected steps left out.
+
+        This is the trajectory `ι_d` the alignment score compares an agent with.
+
+        Example:
+            >>> demo = Demo(actions=np.array([0, 0, 2, 3, 0, 2]), rewards=np.zeros(6),
+            ...             terminated=np.array([0, 0, 0, 0, 0, 1], bool),
+            ...             truncated=np.zeros(6, bool), episode_lengths=np.array([6]),
+            ...             decisions=np.array([0, 0, 1, 1, 0, 1], bool))
+            >>> [a.tolist() for a in demo.decision_actions()]
+            [[2, 3, 2]]
+        """
+        return [
+            actions[decided]
+            for actions, decided in zip(
+                self.episode_actions(),
+                np.split(self.decisions, np.cumsum(self.episode_lengths)[:-1]),
+                strict=True,
+            )
+        ]
+
+    def decision_segments(self) -> tuple[list[np.ndarray], list[tuple[int, int]]]:
+        """Maximal runs of decided steps, and where each starts: what the miners consume.
+
+        An injected step splits an episode as an episode boundary does, so no routine found
+        in the segments spans one. Returns the segments' actions and, for each, `(episode,
+        step)`: its episode and the index of its first step within that episode.
+
+        Example:
+            >>> demo = Demo(actions=np.array([0, 0, 2, 3, 0, 2, 3, 1]), rewards=np.zeros(8),
+            ...             terminated=np.array([0, 0, 0, 0, 0, 0, 0, 1], bool),
+            ...             truncated=np.zeros(8, bool), episode_lengths=np.array([8]),
+            ...             decisions=np.array([0, 0, 1, 1, 0, 1, 1, 1], bool))
+            >>> segments, starts = demo.decision_segments()
+            >>> [s.tolist() for s in segments], starts
+            ([[2, 3], [2, 3, 1]], [(0, 2), (0, 5)])
+        """
+        segments: list[np.ndarray] = []
+        starts: list[tuple[int, int]] = []
+        for e, offset in enumerate(self.episode_offsets.tolist()):
+            end = offset + int(self.episode_lengths[e])
+            decided = self.decisions[offset:end]
+            # Run boundaries: where `decided` switches on (a start) and off (an end).
+            padded = np.concatenate([[False], decided, [False]]).astype(np.int8)
+            edges = np.diff(padded)
+            for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
+                segments.append(self.actions[offset + a : offset + b])
+                starts.append((e, int(a)))
+        return segments, starts
 
     def select(self, episodes: int | Sequence[int]) -> Demo:
         """A new demo of the given episodes, in the given order, with their seeds and meta."""
@@ -454,6 +548,7 @@ class Demo:
                 None if self.final_observations is None else self.final_observations[indices]
             ),
             meta=meta,
+            decisions=np.concatenate([p.decisions for p in parts]),
         )
 
     def best(self) -> Demo:
@@ -474,6 +569,7 @@ class Demo:
             "rewards": self.rewards,
             "terminated": self.terminated,
             "truncated": self.truncated,
+            "decisions": self.decisions,
             "episode_lengths": self.episode_lengths,
             "meta": np.array(json.dumps(_to_json(self.meta), indent=1)),
         }
@@ -524,12 +620,13 @@ class Demo:
                         f"not a routine-gym demo: it has no 'meta' array (arrays: {sorted(names)})"
                     )
                 meta = _parse_meta(_read_array(data, "meta"))
-                missing = [n for n in _REQUIRED_ARRAYS if n not in names]
+                required = _REQUIRED_ARRAYS + (_V2_ARRAYS if meta["version"] >= 2 else ())
+                missing = [n for n in required if n not in names]
                 if missing:
                     raise ValueError(f"missing arrays {missing} (arrays: {sorted(names)})")
                 arrays = {
                     n: _read_array(data, n)
-                    for n in (*_REQUIRED_ARRAYS, *_OBS_ARRAYS)
+                    for n in (*required, *_OBS_ARRAYS)
                     if n in names and n != "meta"
                 }
         except (zipfile.BadZipFile, zlib.error, EOFError, OSError) as exc:
@@ -571,6 +668,26 @@ def _read_array(data: Any, name: str) -> np.ndarray:
     return arr
 
 
+def demo_file_version(path: str | os.PathLike) -> int:
+    """The format version a demo file was written in (1 or 2), read from its `meta` alone.
+
+    Raises:
+        ValueError: naming the file, for a file that is not a readable demo.
+    """
+    path = os.fspath(path)
+    if not zipfile.is_zipfile(path):
+        raise ValueError(f"{path}: not a routine-gym demo: not an .npz (zip) archive")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if "meta" not in data.files:
+                raise ValueError("not a routine-gym demo: it has no 'meta' array")
+            return int(_parse_meta(_read_array(data, "meta"))["version"])
+    except (zipfile.BadZipFile, zlib.error, EOFError, OSError) as exc:
+        raise ValueError(f"{path}: corrupt demo file ({type(exc).__name__}: {exc})") from exc
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from exc
+
+
 def _parse_meta(arr: np.ndarray) -> dict[str, Any]:
     if arr.shape != () or arr.dtype.kind != "U":
         raise ValueError(
@@ -586,10 +703,11 @@ def _parse_meta(arr: np.ndarray) -> dict[str, Any]:
         raise ValueError(
             f"not a routine-gym demo: format is {meta.get('format')!r}, expected {DEMO_FORMAT!r}"
         )
-    if meta.get("version") != DEMO_VERSION:
+    version = meta.get("version")
+    if isinstance(version, bool) or version not in READABLE_VERSIONS:
         raise ValueError(
-            f"demo format version {meta.get('version')!r} is not supported; "
-            f"this routine-gym reads version {DEMO_VERSION}"
+            f"demo format version {version!r} is not supported; "
+            f"this routine-gym reads versions {', '.join(map(str, READABLE_VERSIONS))}"
         )
     return _from_json(meta)
 
@@ -683,6 +801,7 @@ class _Episode:
         self.rewards: list[float] = []
         self.terminated: list[bool] = []
         self.truncated: list[bool] = []
+        self.decisions: list[bool] = []
         self.observations: list[np.ndarray] | None = None if first_obs is None else [first_obs]
         self.finished = False
 
@@ -698,6 +817,11 @@ class DemoRecorder(gym.Wrapper):
     limit and action meanings come from that env's spec, so `replay` can re-create it. An env
     not made by `gym.make` (no spec) records too, but its demo can only be replayed on an env
     passed explicitly. Preprocessing for an agent goes *over* the recorder.
+
+    Each step is recorded as a decision of the demonstrator or as injected by a wrapper (see
+    the module docstring): put `DecisionMarker` at the agent-facing top of the stack (below a
+    `RoutineActionWrapper`, whose routine steps are each a decision); with no marker every step
+    is a decision.
 
     Each `reset` starts an episode and records its seed. A reset without a seed gets one from
     the recorder (`seed + number of completed episodes` when `seed` is given, else a fresh
@@ -754,6 +878,8 @@ class DemoRecorder(gym.Wrapper):
         self._seed_rng = np.random.default_rng()
         self._episodes: list[_Episode] = []
         self._current: _Episode | None = None
+        self._marker: DecisionMarker | None = None
+        self._decision_pending = False
 
     @property
     def num_episodes(self) -> int:
@@ -800,8 +926,13 @@ class DemoRecorder(gym.Wrapper):
             raise ValueError(
                 f"action {a} is outside the action space Discrete({self._num_actions})"
             )
+        if self._marker is None:
+            decision = True  # the recorder is the top of the stack: its caller decides
+        else:  # the one step the marker forwards is the decision; the rest are injected
+            decision, self._decision_pending = self._decision_pending, False
         obs, reward, terminated, truncated, info = self.env.step(action)
         episode.actions.append(a)
+        episode.decisions.append(decision)
         episode.rewards.append(float(reward))
         episode.terminated.append(bool(terminated))
         episode.truncated.append(bool(truncated))
@@ -860,8 +991,11 @@ class DemoRecorder(gym.Wrapper):
                 **self._env_meta,
                 "seeds": [e.seed for e in recorded],
                 "source": self.source,
+                **({} if self._marker is None
+                   else {"recorded_under": self._marker.wrappers_below}),
                 **(meta or {}),
             },
+            decisions=np.array([d for e in recorded for d in e.decisions], dtype=np.bool_),
         )
         if episodes is not None:
             demo = demo.select(episodes)
@@ -879,6 +1013,63 @@ class DemoRecorder(gym.Wrapper):
         demo = self.demo(episodes, include_unfinished=include_unfinished, meta=meta)
         demo.save(path, include_observations=include_observations)
         return demo
+
+
+class DecisionMarker(gym.Wrapper):
+    """The agent-facing top of a recorded stack: the step it forwards is a decision.
+
+    A `DemoRecorder` under preprocessing sees more primitive steps than the agent takes: the
+    no-ops of a no-op start, the FIRE of a fire reset, the NOOP and FIRE that serve a new life.
+    This wrapper tells it which is which. Of the primitive steps the recorder sees during one
+    call of `DecisionMarker.step`, the first is the agent's action (a decision); any other step
+    (one taken inside a `reset`, or a further step a wrapper takes in the same call) was
+    injected by a wrapper. Any wrapper a user adds between the two is covered, with no list
+    of known ones. Put it directly under a `RoutineActionWrapper`, so that each primitive of a
+    routine the agent chose is a decision; `record_agent_demo` builds that stack.
+
+    Example:
+        >>> import gymnasium as gym
+        >>> from routine_gym.envs.atari import FireReset
+        >>> recorder = DemoRecorder(gym.make("ALE/Breakout-v5", frameskip=4),
+        ...                         record_observations=False)
+        >>> env = DecisionMarker(FireReset(recorder))
+        >>> _ = env.reset(seed=0)        # FireReset presses FIRE: injected
+        >>> _ = env.step(3)              # the agent's LEFT: a decision
+        >>> recorder.demo(include_unfinished=True).decisions.tolist()
+        [False, True]
+
+    Args:
+        env: the stack to mark, with a `DemoRecorder` somewhere below it.
+    """
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        below, inner = [], env
+        while not isinstance(inner, DemoRecorder):
+            if not isinstance(inner, gym.Wrapper):
+                raise ValueError(
+                    "DecisionMarker needs a DemoRecorder below it in the wrapper stack; "
+                    f"found none under {type(env).__name__}"
+                )
+            below.append(type(inner).__name__)
+            inner = inner.env
+        if inner._marker is not None and inner._marker is not self:
+            raise ValueError("this DemoRecorder already has a DecisionMarker over it")
+        self.recorder: DemoRecorder = inner
+        #: The wrapper classes between the recorder and this marker, innermost first.
+        self.wrappers_below: list[str] = below[::-1]
+        inner._marker = self
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        self.recorder._decision_pending = False  # every step of a reset is injected
+        return self.env.reset(seed=seed, options=options)
+
+    def step(self, action: Any):
+        self.recorder._decision_pending = True
+        try:
+            return self.env.step(action)
+        finally:
+            self.recorder._decision_pending = False
 
 
 # -- replay ------------------------------------------------------------------------------
@@ -1017,6 +1208,8 @@ def replay(
     replayed = recorder.demo()
     meta = {k: v for k, v in demo.meta.items() if k not in ("scores",)}
     meta["seeds"] = [demo.meta["seeds"][i] for i in indices]
+    original = demo.select(indices)
+    same_steps = np.array_equal(replayed.episode_lengths, original.episode_lengths)
     replayed = Demo(
         actions=replayed.actions,
         rewards=replayed.rewards,
@@ -1026,6 +1219,8 @@ def replay(
         observations=replayed.observations,
         final_observations=replayed.final_observations,
         meta=meta,
+        # The replay steps the raw env only; which steps were decisions is the demo's record.
+        decisions=original.decisions if same_steps else None,
     )
     return ReplayResult(
         episodes=tuple(indices),
@@ -1084,8 +1279,14 @@ def record_agent_demo(
     progress: bool = True,
     wrap_env: Callable[[gym.Env], gym.Env] | None = None,
     meta: dict[str, Any] | None = None,
+    routines: Sequence[Sequence[int]] | None = None,
 ) -> Demo:
     """Run a policy for `num_episodes` episodes and keep the best one (as the paper did).
+
+    The stack is `RoutineActionWrapper(DecisionMarker(wrap_env(DemoRecorder(gym.make(...)))))`
+    (the routine wrapper only with `routines`): the demo records every primitive step of the raw
+    env and marks as decisions the steps the policy chose, each primitive of a chosen routine
+    included, and as injected those the preprocessing took.
 
     Args:
         env_id: the env, made with `gym.make(env_id, **env_kwargs)`.
@@ -1106,7 +1307,10 @@ def record_agent_demo(
         wrap_env: wrappers the policy was trained behind (`lambda env:
             FrameStackObservation(AtariPreprocessing(env), 4)`), applied over the recorder so
             the demo still records primitive steps of the raw env. Scores are the raw env's.
+            Routines go in `routines`, not in `wrap_env`.
         meta: extra provenance for `meta` (which policy, trained how long, ...).
+        routines: routines the policy may choose (a `RoutineLibrary` or action sequences),
+            added as a `RoutineActionWrapper` over the decision marker.
     """
     if isinstance(num_episodes, bool) or not isinstance(num_episodes, int) or num_episodes < 1:
         raise ValueError(f"num_episodes needs to be ≥ 1, actual value: {num_episodes!r}")
@@ -1123,7 +1327,7 @@ def record_agent_demo(
     recorder = DemoRecorder(
         gym.make(env_id, **kwargs), record_observations=record_observations, source="agent"
     )
-    env = wrap_env(recorder) if wrap_env is not None else recorder
+    env = _agent_stack(recorder, wrap_env, routines)
     try:
         for k in range(num_episodes):
             obs, _ = env.reset(seed=seed + k)
@@ -1153,6 +1357,124 @@ def record_agent_demo(
     best = demo.best()
     best.meta["candidates"] = candidates
     return best
+
+
+def _agent_stack(
+    recorder: DemoRecorder,
+    wrap_env: Callable[[gym.Env], gym.Env] | None,
+    routines: Sequence[Sequence[int]] | None,
+) -> gym.Env:
+    """`RoutineActionWrapper(DecisionMarker(wrap_env(recorder)))`, checked."""
+    from routine_gym.wrapper import RoutineActionWrapper
+
+    env = wrap_env(recorder) if wrap_env is not None else recorder
+    inner = env
+    while isinstance(inner, gym.Wrapper) and inner is not recorder:
+        if isinstance(inner, RoutineActionWrapper):
+            raise ValueError(
+                "wrap_env returned a stack with a RoutineActionWrapper; pass the routines as "
+                "record_agent_demo(..., routines=...) so each routine step counts as a decision"
+            )
+        inner = inner.env
+    env = DecisionMarker(env)
+    if routines is not None and len(routines) > 0:
+        env = RoutineActionWrapper(env, routines, record_observations=False)
+    return env
+
+
+def upgrade_demo(demo: Demo, wrap_env: Callable[[gym.Env], gym.Env] | None) -> Demo:
+    """A version-1 demo as version 2: which steps were decisions, re-derived by replaying it.
+
+    Each episode is reset with its seed through `wrap_env` (the preprocessing the demo was
+    recorded under, e.g. the Atari evaluation stack of no-op start, `FireOnLifeLoss` and
+    `FireReset`) with a `DecisionMarker` on top; the marker is then fed the demo's next
+    recorded action until the episode ends. The steps the preprocessing takes itself (during a
+    reset, or after a served life) come out as injected, exactly as a fresh recording of the
+    episode would mark them. `wrap_env=None` (a demo recorded on the raw env, a human's) marks
+    every step a decision.
+
+    Raises:
+        DemoReplayError: the replay through `wrap_env` diverged from the recorded actions,
+            rewards or flags: the demo was not recorded under that preprocessing.
+        ValueError: the demo has no env id or an episode has no seed.
+    """
+    if wrap_env is None:
+        return Demo(actions=demo.actions, rewards=demo.rewards, terminated=demo.terminated,
+                    truncated=demo.truncated, episode_lengths=demo.episode_lengths,
+                    observations=demo.observations, final_observations=demo.final_observations,
+                    meta=demo.meta, decisions=np.ones(len(demo), dtype=np.bool_))
+    if demo.env_id is None:
+        raise ValueError("this demo has no env id, so its env cannot be re-created to upgrade it")
+    decisions: list[np.ndarray] = []
+    recorded_under: list[str] = []
+    for i in range(demo.num_episodes):
+        ep = demo.episode(i)
+        if ep.seed is None:
+            raise ValueError(f"episode {i} of the demo has no reset seed, so it cannot be replayed")
+        kwargs = demo.env_kwargs
+        if demo.meta.get("max_episode_steps") is not None:
+            kwargs["max_episode_steps"] = demo.meta["max_episode_steps"]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            recorder = DemoRecorder(gym.make(demo.env_id, **kwargs), record_observations=False)
+        env = _agent_stack(recorder, wrap_env, None)
+        recorded_under = env.wrappers_below
+        try:
+            env.reset(seed=ep.seed)
+            checked = 0
+            while True:
+                steps = recorder._current.actions
+                checked = _check_upgrade_prefix(ep, recorder._current, i, checked)
+                if recorder._current.finished or len(steps) >= len(ep):
+                    break
+                _, _, terminated, truncated, _ = env.step(int(ep.actions[len(steps)]))
+                if (terminated or truncated) and not recorder._current.finished:
+                    break  # a wrapper ended the episode early: the length check says so
+            _check_upgrade_prefix(ep, recorder._current, i, checked)
+            if len(recorder._current.actions) != len(ep):
+                raise DemoReplayError(
+                    f"upgrade of episode {i} (seed {ep.seed}): the replay under "
+                    f"{recorded_under} ended after {len(recorder._current.actions)} steps, the "
+                    f"demo has {len(ep)}: it was not recorded under this preprocessing",
+                    episode=i, step=len(recorder._current.actions),
+                )
+        finally:
+            env.close()
+        decisions.append(np.array(recorder._current.decisions, dtype=np.bool_))
+    meta = {**demo.meta, "recorded_under": recorded_under}
+    return Demo(actions=demo.actions, rewards=demo.rewards, terminated=demo.terminated,
+                truncated=demo.truncated, episode_lengths=demo.episode_lengths,
+                observations=demo.observations, final_observations=demo.final_observations,
+                meta=meta, decisions=np.concatenate(decisions))
+
+
+def _check_upgrade_prefix(ep: DemoEpisode, current: _Episode, i: int, start: int) -> int:
+    """Raise DemoReplayError where the steps replayed since `start` differ from the episode's;
+    return how many steps are checked."""
+    for t in range(start, len(current.actions)):
+        if t >= len(ep):
+            raise DemoReplayError(
+                f"upgrade of episode {i} (seed {ep.seed}): the replay took more steps than "
+                f"the demo's {len(ep)}: it was not recorded under this preprocessing",
+                episode=i, step=t,
+            )
+        problem = None
+        if current.actions[t] != ep.actions[t]:
+            problem = (f"the preprocessing took action {current.actions[t]} where the demo "
+                       f"has {int(ep.actions[t])}")
+        elif not math.isclose(current.rewards[t], float(ep.rewards[t]), rel_tol=1e-6,
+                              abs_tol=1e-9):
+            problem = f"reward {current.rewards[t]:g} in replay, {float(ep.rewards[t]):g} in the demo"
+        elif (current.terminated[t], current.truncated[t]) != (bool(ep.terminated[t]),
+                                                               bool(ep.truncated[t])):
+            problem = "the episode's end flags differ"
+        if problem is not None:
+            raise DemoReplayError(
+                f"upgrade of episode {i} (seed {ep.seed}) diverged at step {t}: {problem}; "
+                "the demo was not recorded under this preprocessing",
+                episode=i, step=t,
+            )
+    return len(current.actions)
 
 
 class _EnoughEpisodes(Exception):
@@ -1268,7 +1590,11 @@ __all__ = [
     "DemoRecorder",
     "DemoReplayError",
     "ReplayResult",
+    "DecisionMarker",
+    "READABLE_VERSIONS",
+    "demo_file_version",
     "demo_filename",
+    "upgrade_demo",
     "record_agent_demo",
     "record_human_demo",
     "replay",
@@ -1276,8 +1602,13 @@ __all__ = [
 ]
 
 
-#: Where the shipped demonstrations live: `demos/` at the top of the repository.
-DEMOS_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "demos")
+#: Where the shipped demonstrations live. The repository's top-level `demos/` folder is installed
+#: as `routine_gym/demos/` (package data, mapped in pyproject.toml); an editable install or a
+#: source checkout has no such folder and reads `demos/` in place, next to the package.
+_PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__))
+DEMOS_DIR = os.path.join(_PACKAGE_DIR, "demos")
+if not os.path.isdir(DEMOS_DIR):
+    DEMOS_DIR = os.path.join(os.path.dirname(_PACKAGE_DIR), "demos")
 
 
 #: The demonstration suite shipped in `demos/`: the paper's Atari games and CoinRun, one

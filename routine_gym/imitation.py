@@ -2,18 +2,18 @@
 `algos/gail.py` share (SPEC §5–6).
 
 - **The demo in the agent's view.** A demo records the *primitive* env (for Atari: grey 210×160
-  frames, every action including the no-op starts and the FIRE that the agent's reset wrappers
-  press); the agent sees the preprocessed view (84×84, 4-frame stack). `agent_view_states`
-  replays the demo from its seeds (or takes its stored observations) and passes each episode's
-  frames, in order, through the observation half of `preprocess` — grey, resize, frame stack,
-  *without* the reset-side wrappers, since the demo already holds the no-op and FIRE steps as
-  actions. State `t` of an episode is then exactly the stack of the frames before actions
-  `t-3 … t`, so it lines up with action `t`. (The one difference from what an agent sees: at
-  the start of an episode the agent's stack is padded with its first frame, which comes after
-  the no-ops and FIRE; the demo's stack there holds the real earlier frames.)
+  frames, every step including the no-op starts, the FIRE of a fire reset and the served lives
+  that the preprocessing injects); the agent sees the preprocessed view (84×84, 4-frame stack)
+  at its decisions only. `agent_view_states` replays the demo from its seeds (or takes its
+  stored observations), keeps the frame before each *decision* and the final one, and passes
+  them through the observation half of `preprocess` (grey, resize, frame stack). That is what
+  the agent saw: the frame stack sits above the wrappers that inject steps, so it sees the
+  frame after a no-op start as its reset frame (padded), and after a decision followed by
+  injected steps the frame after them. Decision `i` of an episode lines up with state `i`.
 - **The demo buffer `D_prim ∪ D_routine`** of RAPL-SQIL as index arrays over those states:
-  `primitive_transitions` gives `(s_t, a_t, s_{t+1})` for every demo step, `routine_transitions`
-  gives `(s_t, n + k, s_{t+|ρ_k|})` for every occurrence of every routine `ρ_k` of the library.
+  `primitive_transitions` gives `(s_i, a_i, s_{i+1})` for every decision, `routine_transitions`
+  gives `(s_i, n + k, s_{i+|ρ_k|})` for every occurrence of every routine `ρ_k` of the library
+  (occurrences lie within runs of decisions: the miners never let one span an injected step).
 - **SQIL's soft target** `R_sq + Γ·α·logsumexp(Q(s', ·)/α)` (`sqil_target`, `soft_value`), with
   `R_sq = Σ_{τ=1}^{ℓ} γ^{τ-1} r` and `Γ = γ^ℓ` from `sqil_reward_and_discount`.
 - **`FrameReplayMemory`**, the agent's replay memory: one stream of decisions that stores each
@@ -56,7 +56,7 @@ from routine_gym.envs.factory import (
 )
 from routine_gym.library import RoutineLibrary
 from routine_gym.metrics import alignment_score, human_normalized_score
-from routine_gym.mining import OccurrenceIndex, make_proposer
+from routine_gym.mining import demo_occurrences, make_proposer
 from routine_gym.returns import routine_reward_and_discount
 
 __all__ = [
@@ -65,6 +65,7 @@ __all__ = [
     "agent_view_states",
     "build_demo_transitions",
     "check_demo_env",
+    "decision_steps",
     "evaluate_imitation",
     "load_demo",
     "load_routine_library",
@@ -257,14 +258,61 @@ def state_offsets(episode_lengths: Sequence[int] | np.ndarray) -> np.ndarray:
     return np.concatenate([[0], np.cumsum(lengths + 1)[:-1]]).astype(np.int64)
 
 
-def agent_view_states(demo: Demo, env_id: str) -> np.ndarray:
-    """The demo's states as the agent sees them: `(Σ_e (T_e + 1), *agent_obs_shape)`.
+@dataclass(frozen=True)
+class DecisionSteps:
+    """A demo's decisions, the steps imitation learns from, with injected steps left out.
 
-    Episode `e` contributes the state before each of its `T_e` actions and the state after the
-    last one, at `state_offsets(demo.episode_lengths)[e]`. A demo without observations (the
-    shipped ones) is replayed from its seeds in its env; the replay checks every reward and
-    flag. Atari frames go through grey/resize/stack as in `preprocess` (see the module
-    docstring for the alignment); other envs' observations are used as they are.
+    Attributes:
+        lengths: `(E,)` decisions of each episode, `D_e`.
+        actions: `(Σ D_e,)` the decided actions, episodes concatenated.
+        terminated: `(Σ D_e,)` the episode terminated at the decision's step or at a step
+            injected after it (before the next decision).
+        index: `(T,)` each step's decision number within its episode, −1 for an injected step.
+    """
+
+    lengths: np.ndarray
+    actions: np.ndarray
+    terminated: np.ndarray
+    index: np.ndarray
+
+
+def decision_steps(demo: Demo) -> DecisionSteps:
+    """The decided steps of `demo` (see `DecisionSteps`).
+
+    Example:
+        >>> demo = Demo(actions=np.array([0, 2, 3, 0, 4]), rewards=np.zeros(5),
+        ...             terminated=np.array([0, 0, 0, 0, 1], bool), truncated=np.zeros(5, bool),
+        ...             episode_lengths=np.array([5]),
+        ...             decisions=np.array([0, 1, 1, 0, 1], bool))
+        >>> d = decision_steps(demo)
+        >>> d.lengths.tolist(), d.actions.tolist(), d.index.tolist()
+        ([3], [2, 3, 4], [-1, 0, 1, -1, 2])
+    """
+    decided = demo.decisions
+    episode = np.repeat(np.arange(demo.num_episodes), demo.episode_lengths)
+    lengths = np.bincount(episode[decided], minlength=demo.num_episodes).astype(np.int64)
+    # Decision number within the episode: a running count of decisions minus the episode's start.
+    running = np.cumsum(decided) - 1
+    before = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    index = np.where(decided, running - before[episode], -1).astype(np.int64)
+    # A termination on an injected step belongs to the decision before it.
+    owner = np.maximum.accumulate(np.where(decided, np.arange(len(demo)), -1))
+    terminated = np.zeros(int(lengths.sum()), dtype=bool)
+    ends = demo.terminated & (owner >= 0) & (episode[np.maximum(owner, 0)] == episode)
+    terminated[running[owner[ends]]] = True
+    return DecisionSteps(lengths=lengths, actions=demo.actions[decided], terminated=terminated,
+                         index=index)
+
+
+def agent_view_states(demo: Demo, env_id: str) -> np.ndarray:
+    """The demo's states as the agent saw them: `(Σ_e (D_e + 1), *agent_obs_shape)`.
+
+    Episode `e` contributes the state before each of its `D_e` decisions and the state after
+    its last step, at `state_offsets(decision_steps(demo).lengths)[e]`; injected steps have no
+    state of their own (the agent never saw one). A demo without observations (the shipped
+    ones) is replayed from its seeds in its env; the replay checks every reward and flag.
+    Atari frames go through grey/resize/stack as in `preprocess` (see the module docstring);
+    other envs' observations are used as they are.
 
     Raises:
         ValueError: the demo stores no observations and cannot be replayed (no seeds, or no env
@@ -283,7 +331,8 @@ def agent_view_states(demo: Demo, env_id: str) -> np.ndarray:
     states = []
     for e in range(source.num_episodes):
         episode = source.episode(e)
-        frames = np.concatenate([episode.observations, episode.final_observation[None]])
+        decided = demo.episode(e).decisions
+        frames = np.concatenate([episode.observations[decided], episode.final_observation[None]])
         if not is_atari(env_id):
             states.append(frames)
             continue
@@ -483,6 +532,29 @@ def _mined_from(library: RoutineLibrary, demo: Demo) -> bool:
     )
 
 
+def _decision_occurrences(
+    library: RoutineLibrary, demo: Demo, steps: DecisionSteps
+) -> tuple[tuple[tuple[int, int], ...], ...]:
+    """Each routine's occurrences `(episode, decision number)` among `demo`'s decisions."""
+    offsets = demo.episode_offsets
+    occurrences = library.occurrences if _mined_from(library, demo) else None
+    if occurrences is not None:
+        for routine, occ in zip(library.routines, occurrences, strict=True):
+            for e, t in occ:
+                first = int(offsets[e]) + t if 0 <= e < demo.num_episodes else -1
+                if not (0 <= first and first + len(routine) <= len(demo)
+                        and demo.decisions[first : first + len(routine)].all()):
+                    occurrences = None  # mined before the injected steps were marked
+                    break
+            if occurrences is None:
+                break
+    if occurrences is None:
+        occurrences = demo_occurrences(demo, library.routines)
+    return tuple(
+        tuple((e, int(steps.index[int(offsets[e]) + t])) for e, t in occ) for occ in occurrences
+    )
+
+
 def build_demo_transitions(
     demo: Demo,
     states: np.ndarray,
@@ -490,25 +562,24 @@ def build_demo_transitions(
     library: RoutineLibrary | None = None,
     num_primitives: int | None = None,
 ) -> DemoTransitions:
-    """`D_prim ∪ D_routine` of `demo` over its agent-view `states`, with SQIL rewards (r = 1).
+    """`D_prim ∪ D_routine` of `demo`'s decisions over its agent-view `states`, SQIL rewards.
 
-    Occurrences come from `library.occurrences` when the library was mined from this demo (its
-    `source` names the demo's env, seeds and scores; `routine_transitions` still checks them
-    against the actions). A library mined elsewhere (`--routines LIB.json`) is located in this
-    demo afresh, as the miner would have.
+    Only the demonstrator's decisions make transitions (`decision_steps`); an injected step
+    makes none. Occurrences come from `library.occurrences` when the library was mined from
+    this demo (its `source` names the demo's env, seeds and scores, and every occurrence lies
+    on decisions; `routine_transitions` still checks them against the actions). A library mined
+    elsewhere (`--routines LIB.json`, or from the demo before its injected steps were marked)
+    is located in this demo's decisions afresh, as the miner would have.
     """
-    expected = int(demo.episode_lengths.sum() + demo.num_episodes)
+    steps = decision_steps(demo)
+    expected = int(steps.lengths.sum() + demo.num_episodes)
     if len(states) != expected:
         raise ValueError(f"{len(states)} states for a demo that needs {expected}")
     n = demo.num_actions if num_primitives is None else num_primitives
-    parts = [primitive_transitions(demo.episode_lengths, demo.actions, demo.terminated)]
+    parts = [primitive_transitions(steps.lengths, steps.actions, steps.terminated)]
     if library is not None and len(library) > 0:
-        if _mined_from(library, demo):
-            occurrences = library.occurrences
-        else:
-            index = OccurrenceIndex(demo.episode_actions())
-            occurrences = tuple(index.occurrences(r) for r in library.routines)
-        parts.append(routine_transitions(demo.episode_lengths, demo.actions, demo.terminated,
+        occurrences = _decision_occurrences(library, demo, steps)
+        parts.append(routine_transitions(steps.lengths, steps.actions, steps.terminated,
                                          library.routines, occurrences, n))
     merged = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
     rewards, discounts = sqil_reward_and_discount(merged["lengths"], gamma, reward=1.0)
@@ -552,144 +623,8 @@ def sqil_target(
 # ---------------------------------------------------------------------------------------------
 
 
-class FrameReplayMemory:
-    """Replay memory of one env's decisions that stores each frame once (uint8 Atari stacks).
-
-    Entries are the observations of one stream of decisions. `start_episode(obs)` writes an
-    episode's first observation; `add(action, length, terminated, next_obs)` records the
-    decision taken at the newest entry (`length` primitive steps, ℓ) and writes `next_obs` as the
-    next entry. At the end of an episode `next_obs` is the final observation, which is stored
-    (so a truncated episode can bootstrap from it) but never starts a transition.
-
-    With `frame_stack = F > 1`, observations are `(F, *frame)` stacks (Gymnasium's
-    `FrameStackObservation`, oldest frame first) and only the newest frame of each is stored;
-    a stack is rebuilt from the previous `F - 1` entries of the same episode, repeating the
-    episode's first frame before its start, which is how `FrameStackObservation` pads
-    (`padding_type="reset"`). 10^6 Atari decisions take 10^6 × 84 × 84 B ≈ 7 GB instead of
-    28 GB (or 56 GB with the next stacks); the arrays are allocated lazily.
-
-    Example:
-        >>> memory = FrameReplayMemory(8, (2, 1), np.uint8, frame_stack=2)
-        >>> memory.start_episode(np.array([[1], [1]], np.uint8))
-        >>> memory.add(0, 1, False, np.array([[1], [2]], np.uint8))
-        >>> memory.add(3, 2, True, np.array([[2], [3]], np.uint8))
-        >>> len(memory), memory.stacks(np.array([0, 1, 2]))[:, :, 0].tolist()
-        (2, [[1, 1], [1, 2], [2, 3]])
-    """
-
-    def __init__(
-        self,
-        capacity: int,
-        obs_shape: Sequence[int],
-        obs_dtype: Any,
-        frame_stack: int = 1,
-    ) -> None:
-        if capacity < frame_stack + 2:
-            raise ValueError(f"capacity needs to be ≥ frame_stack + 2, actual value: {capacity}")
-        if frame_stack < 1:
-            raise ValueError(f"frame_stack needs to be ≥ 1, actual value: {frame_stack}")
-        obs_shape = tuple(obs_shape)
-        if frame_stack > 1 and (len(obs_shape) < 2 or obs_shape[0] != frame_stack):
-            raise ValueError(
-                f"with frame_stack={frame_stack}, observations must be ({frame_stack}, *frame) "
-                f"stacks, got shape {obs_shape}"
-            )
-        self.capacity = int(capacity)
-        self.obs_shape = obs_shape
-        self.frame_stack = int(frame_stack)
-        frame_shape = obs_shape[1:] if frame_stack > 1 else obs_shape
-        self.frames = np.zeros((self.capacity, *frame_shape), dtype=obs_dtype)
-        self.actions = np.zeros(self.capacity, dtype=np.int64)
-        self.lengths = np.ones(self.capacity, dtype=np.int64)
-        self.terminated = np.zeros(self.capacity, dtype=bool)
-        self.first = np.zeros(self.capacity, dtype=bool)
-        self.has_next = np.zeros(self.capacity, dtype=bool)
-        self.pos = 0  # the slot written next
-        self.full = False
-        self.num_transitions = 0
-        self._started = False
-
-    def __len__(self) -> int:
-        """Transitions that can be sampled."""
-        if not (self.full and self.frame_stack > 1):
-            return self.num_transitions
-        oldest = (self.pos + np.arange(self.frame_stack - 1)) % self.capacity
-        return self.num_transitions - int(self.has_next[oldest].sum())
-
-    def _write(self, obs: np.ndarray, first: bool) -> None:
-        p = self.pos
-        if self.has_next[p]:
-            self.num_transitions -= 1  # the oldest transition is overwritten
-        obs = np.asarray(obs)
-        self.frames[p] = obs[-1] if self.frame_stack > 1 else obs
-        self.first[p] = first
-        self.has_next[p] = False
-        self.pos = (p + 1) % self.capacity
-        self.full = self.full or self.pos == 0
-
-    def start_episode(self, obs: np.ndarray) -> None:
-        """Write the first observation of an episode (for stacks: all frames equal)."""
-        obs = np.asarray(obs)
-        if obs.shape != self.obs_shape:
-            raise ValueError(f"observation of shape {obs.shape}, expected {self.obs_shape}")
-        if self.frame_stack > 1 and not (obs == obs[-1:]).all():
-            raise ValueError(
-                "the first observation of an episode must be a stack of one repeated frame "
-                "(FrameStackObservation pads with the reset frame)"
-            )
-        self._write(obs, first=True)
-        self._started = True
-
-    def add(self, action: int, length: int, terminated: bool, next_obs: np.ndarray) -> None:
-        """Record the decision at the newest entry and write the observation it led to."""
-        if not self._started:
-            raise RuntimeError("call start_episode(obs) before add(...)")
-        last = (self.pos - 1) % self.capacity
-        self.actions[last] = action
-        self.lengths[last] = length
-        self.terminated[last] = terminated
-        self.has_next[last] = True
-        self.num_transitions += 1
-        self._write(next_obs, first=False)
-
-    def stacks(self, index: np.ndarray) -> np.ndarray:
-        """The observations at entries `index` (frame stacks rebuilt for `frame_stack > 1`)."""
-        index = np.asarray(index, dtype=np.int64)
-        if self.frame_stack == 1:
-            return self.frames[index]
-        cols = [index]
-        for _ in range(self.frame_stack - 1):
-            newest = cols[-1]
-            # Step back one entry unless the entry starts its episode (then repeat it).
-            cols.append(np.where(self.first[newest], newest, (newest - 1) % self.capacity))
-        return self.frames[np.stack(cols[::-1], axis=1)]
-
-    def _valid(self, index: np.ndarray) -> np.ndarray:
-        valid = self.has_next[index]
-        if self.full and self.frame_stack > 1:
-            # The oldest F-1 entries may reach back into overwritten slots for their stacks.
-            valid &= (index - self.pos) % self.capacity >= self.frame_stack - 1
-        return valid
-
-    def sample(self, batch_size: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
-        """`batch_size` transitions, uniformly with replacement: `obs`, `actions`, `lengths`,
-        `next_obs`, `terminated`."""
-        if self.num_transitions == 0:
-            raise ValueError("the replay memory holds no transition yet")
-        size = self.capacity if self.full else self.pos
-        index = rng.integers(0, size, size=batch_size)
-        bad = ~self._valid(index)
-        while bad.any():  # only a few entries are not transition starts: rejection is cheap
-            index[bad] = rng.integers(0, size, size=int(bad.sum()))
-            bad = ~self._valid(index)
-        return {
-            "obs": self.stacks(index),
-            "actions": self.actions[index],
-            "lengths": self.lengths[index],
-            "next_obs": self.stacks((index + 1) % self.capacity),
-            "terminated": self.terminated[index],
-        }
-
+# Moved to its own module; imported here so `routine_gym.imitation.FrameReplayMemory` stays.
+from routine_gym.replay_memory import FrameReplayMemory  # noqa: E402
 
 # ---------------------------------------------------------------------------------------------
 # Evaluation
@@ -711,9 +646,11 @@ def evaluate_imitation(
 
     The env is the demo's primitive env under the agent's evaluation view (`preprocess` with
     `training=False`: no life-loss episodes, no reward clipping) and the routines, with a
-    `DemoRecorder` under the preprocessing, so each episode's *primitive* action trajectory —
-    a routine decision counted as its executed primitive actions, Atari's no-op starts and FIRE
-    included, as in the demo — is what gets aligned with the demo's best episode.
+    `DemoRecorder` under the preprocessing and a `DecisionMarker` over it, so each episode's
+    decided *primitive* action trajectory — a routine decision counted as its executed
+    primitive actions, the steps the preprocessing injects (Atari's no-op starts, FIRE, served
+    lives) left out, as in the demo — is what gets aligned with the demo's best episode.
+    `lengths` are the episodes' primitive steps, injected ones included.
 
     Args:
         env_id: the env.
@@ -735,26 +672,23 @@ def evaluate_imitation(
                                                 else env_kwargs)}
 
     def wrap(env: gym.Env) -> gym.Env:
-        env = preprocess(RecordEpisodeStatistics(env), env_id, training=False)
-        if routines is not None and len(routines) > 0:
-            from routine_gym.wrapper import RoutineActionWrapper
-
-            env = RoutineActionWrapper(env, routines, record_observations=False)
-        return env
+        return preprocess(RecordEpisodeStatistics(env), env_id, training=False)
 
     played = record_agent_demo(
         env_id, policy, num_episodes=episodes, seed=seed, env_kwargs=kwargs, keep="all",
-        max_steps=max_steps, progress=False, wrap_env=wrap,
+        max_steps=max_steps, progress=False, wrap_env=wrap, routines=routines,
     )
-    reference = demo.episode(demo.best_episode).actions
-    trajectories = played.episode_actions()
+    # ι_d and ι_t: the demonstrator's and the agent's decided primitive actions (a routine as
+    # its executed primitives), without the steps the preprocessing injected into either.
+    reference = demo.decision_actions()[demo.best_episode]
+    trajectories = played.decision_actions()
     alignments = [alignment_score(reference, actions) for actions in trajectories]
     returns = played.scores.tolist()
     summary: dict[str, Any] = {
         "env_id": env_id,
         "episodes": episodes,
         "returns": returns,
-        "lengths": [len(a) for a in trajectories],
+        "lengths": played.episode_lengths.tolist(),
         "alignments": alignments,
         "mean_return": float(np.mean(returns)),
         "std_return": float(np.std(returns)),

@@ -56,6 +56,7 @@ __all__ = [
     "RepeatProposer",
     "RoutineProposer",
     "SequiturMiner",
+    "demo_occurrences",
     "make_proposer",
 ]
 
@@ -195,18 +196,48 @@ class OccurrenceIndex:
         return tuple(zip(ep.tolist(), (p - self.offsets[ep]).tolist(), strict=True))
 
 
-def _episodes_of(actions: Any) -> tuple[list[np.ndarray], Sequence[str] | None, dict[str, Any]]:
-    """Episodes, action meanings and a source description from actions or a `Demo`."""
+@dataclass(frozen=True)
+class _Demonstrated:
+    """What a proposer mines: the sequences, and where each one starts in the demo."""
+
+    episodes: list[np.ndarray]
+    """The sequences mined: a demo's decision segments, or the episodes given."""
+    starts: list[tuple[int, int]] | None
+    """`(episode, step)` of each sequence's first action in the demo (None: as given)."""
+    meanings: Sequence[str] | None
+    source: dict[str, Any]
+
+    def occurrences(self, index: OccurrenceIndex, routine: Routine) -> tuple[tuple[int, int], ...]:
+        """`index.occurrences(routine)` as `(episode, step)` positions in the demo."""
+        found = index.occurrences(routine)
+        if self.starts is None:
+            return found
+        return tuple((self.starts[s][0], self.starts[s][1] + t) for s, t in found)
+
+
+def _episodes_of(actions: Any) -> _Demonstrated:
+    """The sequences to mine, action meanings and a source description, from actions or a `Demo`.
+
+    A `Demo` gives its decision segments (`Demo.decision_segments`): the steps its wrappers
+    injected split the sequence as episode boundaries do, so no routine spans one, and
+    occurrence positions are mapped back to `(episode, step)` of the demo.
+    """
     meanings = None
     source: dict[str, Any] = {}
-    if hasattr(actions, "episode_actions"):  # a routine_gym.demo.Demo
+    starts = None
+    if hasattr(actions, "decision_segments"):  # a routine_gym.demo.Demo
         demo = actions
         meta = getattr(demo, "meta", {}) or {}
         meanings = meta.get("action_meanings")
         source = {
             k: meta[k] for k in ("env_id", "seeds", "scores", "source", "path") if k in meta
         }
-        actions = demo.episode_actions()
+        actions, starts = demo.decision_segments()
+        if not actions:
+            raise ValueError(
+                "the demonstration is empty: it has no step the demonstrator decided "
+                "(every step was injected by a wrapper)"
+            )
     episodes = _as_episodes(actions)
     total = sum(e.size for e in episodes)
     if total == 0:
@@ -216,7 +247,22 @@ def _episodes_of(actions: Any) -> tuple[list[np.ndarray], Sequence[str] | None, 
             "the demonstration has no episode of two or more actions: a routine needs at least "
             "two consecutive actions"
         )
-    return episodes, meanings, source
+    return _Demonstrated(episodes, starts, meanings, source)
+
+
+def demo_occurrences(demo: Any, routines: Sequence[Sequence[int]]) -> tuple[
+    tuple[tuple[int, int], ...], ...
+]:
+    """Every occurrence `(episode, step)` of each routine in a `Demo`'s decisions.
+
+    Found as the miners find them: overlapping ones counted, none across an episode boundary
+    or an injected step; `step` indexes the episode's recorded steps.
+    """
+    demonstrated = _episodes_of(demo)
+    index = OccurrenceIndex(demonstrated.episodes)
+    return tuple(
+        demonstrated.occurrences(index, tuple(int(a) for a in r)) for r in routines
+    )
 
 
 def _check_params(num_routines: int, length_weight: float, alpha: int) -> None:
@@ -291,6 +337,7 @@ class _Selector:
 def _build_library(
     accepted: Sequence[tuple[Routine, float, int]],
     index: OccurrenceIndex,
+    demonstrated: _Demonstrated,
     k: int,
     params: dict[str, Any],
     meanings: Sequence[str] | None,
@@ -306,7 +353,7 @@ def _build_library(
         routines=tuple(r for r, _, _ in accepted),
         scores=tuple(s for _, s, _ in accepted),
         frequencies=tuple(f for _, _, f in accepted),
-        occurrences=tuple(index.occurrences(r) for r, _, _ in accepted),
+        occurrences=tuple(demonstrated.occurrences(index, r) for r, _, _ in accepted),
         params=params,
         source=source,
         action_meanings=None if meanings is None else tuple(meanings),
@@ -357,17 +404,19 @@ class SequiturMiner:
         source: dict[str, Any] | None = None,
     ) -> RoutineLibrary:
         """Mine a `RoutineLibrary` from actions, episodes of actions, or a `Demo`."""
-        episodes, meanings, demo_source = _episodes_of(actions)
+        demonstrated = _episodes_of(actions)
+        episodes = demonstrated.episodes
         index = OccurrenceIndex(episodes)
         selector = _Selector(index, self.length_weight, self.alpha, self.prune_primitives)
         accepted = selector.select(self.candidates(episodes), self.num_routines)
         return _build_library(
             accepted,
             index,
+            demonstrated,
             self.num_routines,
             self.params(),
-            action_meanings if action_meanings is not None else meanings,
-            {**demo_source, **(source or {})},
+            action_meanings if action_meanings is not None else demonstrated.meanings,
+            {**demonstrated.source, **(source or {})},
         )
 
 
@@ -396,7 +445,8 @@ class _Ablation:
         action_meanings: Sequence[str] | None = None,
         source: dict[str, Any] | None = None,
     ) -> RoutineLibrary:
-        episodes, meanings, demo_source = _episodes_of(actions)
+        demonstrated = _episodes_of(actions)
+        episodes = demonstrated.episodes
         index = OccurrenceIndex(episodes)
         selector = _Selector(index, self.length_weight, self.alpha, self.prune_primitives)
         full = SequiturMiner(
@@ -411,10 +461,11 @@ class _Ablation:
         return _build_library(
             accepted,
             index,
+            demonstrated,
             self.num_routines,
             self.params(),
-            action_meanings if action_meanings is not None else meanings,
-            {**demo_source, **(source or {})},
+            action_meanings if action_meanings is not None else demonstrated.meanings,
+            {**demonstrated.source, **(source or {})},
         )
 
     def propose(self, episodes, index, selector, lengths, rng) -> list[Routine]:

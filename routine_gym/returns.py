@@ -23,6 +23,7 @@ import numpy as np
 
 __all__ = [
     "decision_returns",
+    "inner_states_and_targets",
     "macro_reward_and_discount",
     "primitive_returns",
     "routine_reward_and_discount",
@@ -57,7 +58,29 @@ def routine_reward_and_discount(
 def macro_reward_and_discount(
     rewards: np.ndarray, lengths: np.ndarray, gamma: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The MacroAction baseline's plain sum `Σ_j r_j` and one `γ` per decision."""
+    """The MacroAction baseline's plain sum `R = Σ_j r_j` and one `Γ = γ` per decision.
+
+    The baseline treats a routine as a black-box action: the rewards of its steps are summed
+    undiscounted and the next decision is one γ away whatever the routine's length. Plain A2C is
+    the same with every length 1, where this agrees with `routine_reward_and_discount`.
+
+    Args:
+        rewards: `[..., L, E]` per-step rewards, zero-padded past each routine's length.
+        lengths: `[..., E]` executed lengths ℓ (≥ 1); the padding past them is not summed.
+        gamma: the discount γ, used once per decision.
+
+    Returns:
+        `(R, Γ)`, each `[..., E]` float64.
+
+    Example:
+        >>> import numpy as np
+        >>> from routine_gym.returns import macro_reward_and_discount, routine_reward_and_discount
+        >>> rewards = np.array([[[1.0], [2.0], [4.0]]])  # [N=1, L=3, E=1]: 2 executed, 1 pad
+        >>> macro_reward_and_discount(rewards, np.array([[2]]), 0.5)  # 1 + 2, γ
+        (array([[3.]]), array([[0.5]]))
+        >>> routine_reward_and_discount(rewards, np.array([[2]]), 0.5)  # 1 + 0.5·2, γ²
+        (array([[2.]]), array([[0.25]]))
+    """
     rewards = np.asarray(rewards, dtype=np.float64)
     lengths = np.asarray(lengths)
     mask = _step_mask(lengths, rewards.shape[-2])
@@ -142,3 +165,45 @@ def primitive_returns(
             next_return = np.where(executed, value, next_return)
             returns[i, j] = np.where(executed, value, 0.0)
     return returns
+
+
+def inner_states_and_targets(
+    inner_obs: np.ndarray, prim_returns: np.ndarray, lengths: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The critic's `A_prim` pairs: each primitive state visited inside a routine, and its return.
+
+    Step `j ≥ 1` of decision `i` starts from the observation after step `j-1`, which the routine
+    wrapper records as `inner_obs[i, j-1]`; its target is `prim_returns[i, j]`, the return from
+    that step. Step 0 is left out: its state is the decision's own, whose target
+    (`prim_returns[i, 0]`, the decision return `G_i`) `A_routine` already trains; so are the
+    padded steps `j ≥ ℓ_i`, and with them the routine's last observation, which is the next
+    decision's state.
+
+    Args:
+        inner_obs: `[N, ≥ L-1, E, *obs_shape]` the observation after each step of each decision
+            (``routine_observations``, time-major); entries from step axis index `L-1` on are
+            ignored.
+        prim_returns: `[N, L, E]` the returns of every primitive step, as `primitive_returns`
+            gives them.
+        lengths: `[N, E]` executed lengths ℓ (≥ 1).
+
+    Returns:
+        `(states, targets)`: `[M, *obs_shape]` observations and `[M]` returns, where
+        `M = Σ (ℓ_i − 1)`, ordered by decision, then step, then env.
+
+    Example:
+        >>> import numpy as np
+        >>> from routine_gym.returns import inner_states_and_targets
+        >>> inner_obs = np.array([[[[0.1]], [[0.2]]]])  # [N=1, L-1=2, E=1, 1]: after steps 0, 1
+        >>> prim = np.array([[[5.0], [8.0], [12.0]]])   # [N=1, L=3, E=1]: returns of steps 0-2
+        >>> states, targets = inner_states_and_targets(inner_obs, prim, np.array([[3]]))
+        >>> states.tolist(), targets.tolist()
+        ([[0.1], [0.2]], [8.0, 12.0])
+        >>> states, targets = inner_states_and_targets(inner_obs, prim, np.array([[2]]))
+        >>> states.tolist(), targets.tolist()  # a routine cut after 2 steps: one inner state
+        ([[0.1]], [8.0])
+    """
+    lengths = np.asarray(lengths)
+    max_len = prim_returns.shape[1]
+    inside = np.arange(1, max_len)[None, :, None] < lengths[:, None, :]  # [N, L-1, E]
+    return inner_obs[:, : max_len - 1][inside], prim_returns[:, 1:][inside]

@@ -218,7 +218,7 @@ def test_show_a_demo(capsys, shipped_demo):
     for meaning, count in zip(meanings, counts, strict=True):
         assert (f"{meaning}={count}" in out) == (count > 0)
     first = " ".join(meanings[a] for a in actions[:3])
-    assert f"first actions: {first}\n" in out
+    assert f"first decided actions: {first}\n" in out
 
 
 def test_show_errors(capsys, tmp_path):

@@ -91,6 +91,7 @@ def demo_arrays(demo: Demo, **meta_changes) -> dict:
         "rewards": demo.rewards,
         "terminated": demo.terminated,
         "truncated": demo.truncated,
+        "decisions": demo.decisions,
         "episode_lengths": demo.episode_lengths,
         "meta": np.array(json.dumps(meta)),
     }
@@ -190,7 +191,7 @@ def test_round_trip_keeps_every_field(cartpole_demo, tmp_path):
     np.testing.assert_array_equal(loaded.final_observations, cartpole_demo.final_observations)
     assert loaded.meta == cartpole_demo.meta
     meta = loaded.meta
-    assert meta["format"] == DEMO_FORMAT and meta["version"] == 1
+    assert meta["format"] == DEMO_FORMAT and meta["version"] == 2
     assert meta["env_id"] == "CartPole-v1" and meta["max_episode_steps"] == 500
     assert meta["seeds"] == [0, 1, 2] and meta["num_actions"] == 2
     assert meta["source"] == "random" and meta["routine_gym_version"]
@@ -224,7 +225,7 @@ def test_saved_file_holds_no_pickles(cartpole_demo, tmp_path):
     cartpole_demo.save(path)
     with np.load(path, allow_pickle=False) as data:
         assert set(data.files) == {
-            "actions", "rewards", "terminated", "truncated", "episode_lengths",
+            "actions", "rewards", "terminated", "truncated", "decisions", "episode_lengths",
             "observations", "final_observations", "meta",
         }
         arrays = {name: data[name] for name in data.files}
@@ -349,7 +350,7 @@ def test_load_rejects_another_format(cartpole_demo, tmp_path):
 def test_load_rejects_an_unknown_version(cartpole_demo, tmp_path):
     write_npz(tmp_path / "d.npz", demo_arrays(cartpole_demo, version=7))
     with pytest.raises(
-        ValueError, match="version 7 is not supported; this routine-gym reads version 1"
+        ValueError, match="version 7 is not supported; this routine-gym reads versions 1, 2"
     ):
         Demo.load(tmp_path / "d.npz")
 

@@ -548,14 +548,15 @@ MEANINGS = ("NOOP", "FIRE", "UP", "RIGHT", "LEFT", "DOWN")
 
 
 class FakeDemo:
-    """Stands in for routine_gym.demo.Demo: `episode_actions()` and a `meta` dict."""
+    """Stands in for routine_gym.demo.Demo: `decision_segments()` and a `meta` dict."""
 
     def __init__(self, episodes, meta):
         self._episodes = episodes
         self.meta = meta
 
-    def episode_actions(self):
-        return [np.asarray(e, dtype=np.int64) for e in self._episodes]
+    def decision_segments(self):
+        return ([np.asarray(e, dtype=np.int64) for e in self._episodes],
+                [(i, 0) for i in range(len(self._episodes))])
 
 
 def test_mining_a_demo_carries_meanings_and_provenance():

@@ -7,13 +7,17 @@ Arrays are time-major: `[N, E]` for decisions, `[N, L, E]` for the steps inside 
 
 from __future__ import annotations
 
+import doctest
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import routine_gym.returns
 from routine_gym.returns import (
     decision_returns,
+    inner_states_and_targets,
     macro_reward_and_discount,
     primitive_returns,
     routine_reward_and_discount,
@@ -75,6 +79,22 @@ def test_routine_reward_of_a_rollout_is_per_decision_and_per_env():
     reward, discount = macro_reward_and_discount(rewards, lengths, GAMMA)
     assert reward.tolist() == [[7.0, 8.0], [8.0, 16.0]]  # 1+2+4, 8, 4+4, 0+8+8
     assert discount.tolist() == [[0.5, 0.5], [0.5, 0.5]]
+
+
+def test_macro_return_discounts_once_per_decision_where_rapl_discounts_per_step():
+    # The return `--mode macro` learns from. Decision 0: a 3-step routine [1, 2, 4]; decision 1:
+    # a primitive [8]; V_boot = 16.
+    # MacroAction: R = [1+2+4 = 7, 8], Γ = [0.5, 0.5]:
+    #   G_1 = 8 + 0.5·16 = 16;  G_0 = 7 + 0.5·16 = 15.
+    # RAPL on the same rollout: R_0 = 1 + 0.5·2 + 0.25·4 = 3, Γ_0 = 0.125:
+    #   G_1 = 16;  G_0 = 3 + 0.125·16 = 5 (the primitive-level return of step (0,0)).
+    step_rewards = col([1.0, 2.0, 4.0], [8.0, 0.0, 0.0])
+    lengths = col(3, 1)
+    rest = (flags(F, F), flags(F, F), col(0.0, 0.0), np.array([16.0]))
+    macro = macro_reward_and_discount(step_rewards, lengths, GAMMA)
+    assert decision_returns(*macro, *rest).tolist() == [[15.0], [16.0]]
+    routine = routine_reward_and_discount(step_rewards, lengths, GAMMA)
+    assert decision_returns(*routine, *rest).tolist() == [[5.0], [16.0]]
 
 
 # -- decision returns ----------------------------------------------------------------------
@@ -208,6 +228,73 @@ def test_envs_are_independent():
         GAMMA,
     )
     assert prim[0].tolist() == [[3.0, 3.0], [4.0, 0.0]]
+
+
+# -- A_prim: inner states and their targets --------------------------------------------------
+
+
+def test_inner_state_after_step_j_minus_1_is_paired_with_the_return_of_step_j():
+    # N=2 decisions, L=3, E=2 envs, lengths ℓ = [[3, 1], [2, 3]]. Each observation is a tag
+    # 100·i + 10·k + e for "decision i, after step k, env e"; each return 100·i + 10·j + e + 0.5
+    # for "decision i, step j, env e". Padding is 999 (obs) and -1 (returns) so that reading
+    # it shows. Inner steps j ≥ 1 with j < ℓ, in (decision, step, env) order:
+    #   (0,1,0) (0,2,0)   env 0's 3-step routine of decision 0
+    #   —               env 1's primitive of decision 0 (ℓ=1): none
+    #   (1,1,0)           env 0's routine cut after 2 steps
+    #   (1,1,1) (1,2,1)   env 1's 3-step routine
+    # step j's state is the obs after step k = j-1:  tags 0, 10, 100, 101, 111
+    # and its target the return of step j:           10.5, 20.5, 110.5, 111.5, 121.5
+    lengths = np.array([[3, 1], [2, 3]])
+    inner_obs = np.full((2, 2, 2, 1), 999.0)  # [N, L-1, E, obs]
+    prim = np.full((2, 3, 2), -1.0)  # [N, L, E]
+    for i in range(2):
+        for e in range(2):
+            for k in range(lengths[i, e] - 1):
+                inner_obs[i, k, e, 0] = 100 * i + 10 * k + e
+            for j in range(lengths[i, e]):
+                prim[i, j, e] = 100 * i + 10 * j + e + 0.5
+    states, targets = inner_states_and_targets(inner_obs, prim, lengths)
+    assert states.tolist() == [[0.0], [10.0], [100.0], [101.0], [111.0]]
+    assert targets.tolist() == [10.5, 20.5, 110.5, 111.5, 121.5]
+    # The wrapper's full `routine_observations` also hold the obs after the last step (the next
+    # decision's state, tag k = 2); it is not an inner state, so the pairs stay the same.
+    full_obs = np.concatenate([inner_obs, np.full((2, 1, 2, 1), 999.0)], axis=1)
+    states_full, targets_full = inner_states_and_targets(full_obs, prim, lengths)
+    assert states_full.tolist() == states.tolist()
+    assert targets_full.tolist() == targets.tolist()
+
+
+def test_inner_targets_are_the_primitive_returns_from_inside_the_routine():
+    # Decision 0: a 3-step routine [1, 2, 4] through states s0 → s1 → s2 → s3; decision 1: a
+    # primitive [8] from s3; V_boot = 16. Primitive returns (worked in
+    # test_primitive_returns_chain_through_decisions_and_bootstrap): [[5, 8, 12], [16, 0, 0]].
+    # The inner states are s1 (after step 0) with 2 + 0.5·(4 + 0.5·16) = 8 and s2 with
+    # 4 + 0.5·16 = 12; s0 and s3 are decisions' own states and belong to A_routine.
+    prim = primitive_returns(
+        col([1.0, 2.0, 4.0], [8.0, 0.0, 0.0]), col(3, 1), flags(F, F), flags(F, F),
+        col(0.0, 0.0), np.array([16.0]), GAMMA,
+    )
+    s1, s2 = [1.0, 1.0], [2.0, 2.0]  # 2-feature observations
+    inner_obs = np.zeros((2, 2, 1, 2))  # [N, L-1, E, obs]; decision 1 has no inner state
+    inner_obs[0, 0, 0], inner_obs[0, 1, 0] = s1, s2
+    states, targets = inner_states_and_targets(inner_obs, prim, col(3, 1))
+    assert states.tolist() == [s1, s2]
+    assert targets.tolist() == [8.0, 12.0]
+
+
+def test_no_inner_states_when_every_decision_is_a_primitive():
+    # ℓ = 1 everywhere (plain A2C, or a rollout that used no routine): nothing inside a routine,
+    # and the empty arrays keep the observation shape for the critic.
+    states, targets = inner_states_and_targets(
+        np.ones((3, 2, 4, 5, 6)), np.ones((3, 3, 4)), np.ones((3, 4), dtype=np.int64)
+    )
+    assert states.shape == (0, 5, 6)
+    assert targets.shape == (0,)
+
+
+def test_docstring_examples_run():
+    result = doctest.testmod(routine_gym.returns)
+    assert result.attempted > 0 and result.failed == 0
 
 
 # -- properties ----------------------------------------------------------------------------

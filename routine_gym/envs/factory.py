@@ -47,6 +47,7 @@ __all__ = [
     "make_primitive_env",
     "preprocess",
     "preprocess_observation",
+    "recording_stacks",
 ]
 
 COINRUN_ID = "procgen/CoinRun-v0"
@@ -75,13 +76,18 @@ def make_primitive_env(env_id: str, render_mode: str | None = None, **kwargs: An
     return gym.make(env_id, **kwargs)
 
 
-def preprocess(env: gym.Env, env_id: str, *, training: bool = True) -> gym.Env:
+def preprocess(
+    env: gym.Env, env_id: str, *, training: bool = True, serve_lives: bool = True
+) -> gym.Env:
     """Add the agent's standard preprocessing on top of a primitive env.
 
     Atari: no-op starts, FIRE, 84×84 grey 4-stacks; in training a life loss also ends the
     episode and rewards are sign-clipped. MiniQbert, a Qbert in miniature, is trained as Qbert
     is: a life loss ends the training episode (otherwise falling off is a free teleport back to
     the top, and agents learn to spend lives on it until the last one runs out).
+
+    `serve_lives=False` leaves `FireOnLifeLoss` out of the evaluation stack: the stack of
+    routine-gym 0.1, which the first shipped Qbert demo was recorded under.
     """
     if is_miniqbert(env_id):
         return EpisodicLife(env) if training else env
@@ -91,12 +97,32 @@ def preprocess(env: gym.Env, env_id: str, *, training: bool = True) -> gym.Env:
     if training:
         env = EpisodicLife(env)
     if "FIRE" in env.unwrapped.get_action_meanings():
-        if not training:  # each life starts as in training, where EpisodicLife + FireReset fire
+        if not training and serve_lives:  # each life starts as in training (EpisodicLife +
+            # FireReset fire there)
             env = FireOnLifeLoss(env)
         env = FireReset(env)
     if training:
         env = TransformReward(env, sign_reward)
     return preprocess_observation(env, env_id)
+
+
+def recording_stacks(env_id: str) -> dict[str, Callable[[gym.Env], gym.Env]]:
+    """The preprocessing stacks a demo of `env_id` may have been recorded under, newest first.
+
+    `routine-gym upgrade` replays a version-1 demo through each in turn to find which steps
+    the preprocessing injected. `agent` is today's evaluation view (`preprocess(...,
+    training=False)`, what `rapl_a2c.py --record-demo` records under); `agent-0.1` the same
+    without `FireOnLifeLoss` (routine-gym 0.1), only where it differs; `raw` no preprocessing
+    (the CLI's `record` and `play`), where every step is a decision.
+    """
+    stacks: dict[str, Callable[[gym.Env], gym.Env]] = {
+        "agent": lambda env: preprocess(env, env_id, training=False),
+    }
+    if is_atari(env_id):
+        stacks["agent-0.1"] = lambda env: preprocess(env, env_id, training=False,
+                                                     serve_lives=False)
+    stacks["raw"] = lambda env: env
+    return stacks
 
 
 def preprocess_observation(env: gym.Env, env_id: str) -> gym.Env:
