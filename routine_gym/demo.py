@@ -1464,7 +1464,8 @@ def _check_upgrade_prefix(ep: DemoEpisode, current: _Episode, i: int, start: int
                        f"has {int(ep.actions[t])}")
         elif not math.isclose(current.rewards[t], float(ep.rewards[t]), rel_tol=1e-6,
                               abs_tol=1e-9):
-            problem = f"reward {current.rewards[t]:g} in replay, {float(ep.rewards[t]):g} in the demo"
+            problem = (f"reward {current.rewards[t]:g} in replay, {float(ep.rewards[t]):g} "
+                       "in the demo")
         elif (current.terminated[t], current.truncated[t]) != (bool(ep.terminated[t]),
                                                                bool(ep.truncated[t])):
             problem = "the episode's end flags differ"
