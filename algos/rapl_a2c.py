@@ -43,6 +43,7 @@ import routine_gym
 from routine_gym.atomic import atomic_write_text
 from routine_gym.checkpoint import resume_settings, write_checkpoint
 from routine_gym.demo import Demo, record_agent_demo, shipped_demo_path
+from routine_gym.envs import canonical_env_id, same_env
 from routine_gym.envs.factory import (
     default_env_kwargs,
     is_atari,
@@ -190,7 +191,7 @@ def load_routines(args: Args) -> RoutineLibrary | None:
         return None
     if args.routines:
         library = RoutineLibrary.load(args.routines)
-        if library.source.get("env_id") not in (None, args.env_id):
+        if not same_env(library.source.get("env_id"), args.env_id):
             raise ValueError(
                 f"{args.routines} was mined from a demo of {library.source['env_id']}, "
                 f"not {args.env_id}"
@@ -269,7 +270,7 @@ def evaluate(agent: Agent, args: Args, library, device, episodes: int) -> dict:
     if is_atari(args.env_id):
         try:
             summary["human_normalized_score"] = human_normalized_score(
-                summary["mean_return"], args.env_id
+                summary["mean_return"], canonical_env_id(args.env_id)
             )
         except (KeyError, ValueError):
             pass

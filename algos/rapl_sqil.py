@@ -93,7 +93,7 @@ class Args:
     learning_rate: float = 1e-3
     """the learning rate of the Adam optimizer"""
     buffer_size: int = 100_000
-    """capacity of the agent's replay memory, in decisions (Atari: 84×84 B per decision)"""
+    """replay memory capacity in frames (Atari: 84×84 B each, min(ℓ, 4) kept per ℓ-step decision)"""
     gamma: float = 0.99
     """the discount factor γ per primitive step"""
     temperature: float = 1.0

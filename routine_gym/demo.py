@@ -714,10 +714,12 @@ def _parse_meta(arr: np.ndarray) -> dict[str, Any]:
 
 def _check_env(demo: Demo, env: gym.Env | None = None, env_id: str | None = None) -> None:
     """Raise ValueError when `demo` was not recorded on `env` / `env_id`."""
+    from routine_gym.envs import same_env
+
     expected = env_id
     if expected is None and env is not None and env.spec is not None:
         expected = env.spec.id
-    if expected is not None and demo.env_id is not None and expected != demo.env_id:
+    if not same_env(expected, demo.env_id):  # by registered spec: `module:EnvId` is EnvId
         raise ValueError(f"demo was recorded on {demo.env_id}, not {expected}")
     if env is not None:
         space = env.action_space
@@ -1632,5 +1634,7 @@ def demo_filename(env_id: str) -> str:
 
 def shipped_demo_path(env_id: str) -> str | None:
     """The path of the demo shipped in `demos/` for `env_id`, or None if there is none."""
-    path = os.path.join(DEMOS_DIR, demo_filename(env_id))
+    from routine_gym.envs import canonical_env_id
+
+    path = os.path.join(DEMOS_DIR, demo_filename(canonical_env_id(env_id)))
     return path if os.path.isfile(path) else None

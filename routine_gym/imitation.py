@@ -47,6 +47,7 @@ from gymnasium.wrappers import RecordEpisodeStatistics
 
 from routine_gym.atomic import atomic_write_text
 from routine_gym.demo import Demo, record_agent_demo, replay, shipped_demo_path
+from routine_gym.envs import canonical_env_id, same_env
 from routine_gym.envs.factory import (
     default_env_kwargs,
     is_atari,
@@ -57,6 +58,7 @@ from routine_gym.envs.factory import (
 from routine_gym.library import RoutineLibrary
 from routine_gym.metrics import alignment_score, human_normalized_score
 from routine_gym.mining import demo_occurrences, make_proposer
+from routine_gym.replay_memory import FrameReplayMemory
 from routine_gym.returns import routine_reward_and_discount
 
 __all__ = [
@@ -118,7 +120,7 @@ def check_demo_env(demo: Demo, env_id: str, env_kwargs: dict[str, Any] | None = 
     Raises:
         ValueError: naming the demo's and the env's action spaces or meanings.
     """
-    if demo.env_id is not None and demo.env_id != env_id:
+    if not same_env(demo.env_id, env_id):
         raise ValueError(f"the demo was recorded on {demo.env_id}, not {env_id}")
     env = make_primitive_env(env_id, **(env_kwargs if env_kwargs is not None else demo.env_kwargs))
     try:
@@ -171,7 +173,7 @@ def load_routine_library(
     if routines_path is not None:
         library = RoutineLibrary.load(routines_path)
         mined_on = library.source.get("env_id")
-        if mined_on not in (None, env_id):
+        if not same_env(mined_on, env_id):
             raise ValueError(
                 f"{routines_path} was mined from a demo of {mined_on}, not {env_id}"
             )
@@ -619,14 +621,6 @@ def sqil_target(
 
 
 # ---------------------------------------------------------------------------------------------
-# The agent's replay memory
-# ---------------------------------------------------------------------------------------------
-
-
-# Moved to its own module; imported here so `routine_gym.imitation.FrameReplayMemory` stays.
-from routine_gym.replay_memory import FrameReplayMemory  # noqa: E402
-
-# ---------------------------------------------------------------------------------------------
 # Evaluation
 # ---------------------------------------------------------------------------------------------
 
@@ -701,7 +695,7 @@ def evaluate_imitation(
     if is_atari(env_id):
         try:
             summary["human_normalized_score"] = float(
-                human_normalized_score(summary["mean_return"], env_id)
+                human_normalized_score(summary["mean_return"], canonical_env_id(env_id))
             )
         except ValueError:
             pass  # an Atari game outside the published table

@@ -1,12 +1,11 @@
-"""SQIL's pure pieces (routine_gym.imitation): the soft target, D_prim and D_routine, the demo
-states in the agent's view, and the frame-storing replay memory."""
+"""SQIL's pure pieces (routine_gym.imitation): the soft target, D_prim and D_routine, and the demo
+states in the agent's view (the replay memory is tested in test_replay_memory.py)."""
 
 from __future__ import annotations
 
 import math
 import warnings
 
-import gymnasium as gym
 import numpy as np
 import pytest
 import torch
@@ -15,7 +14,6 @@ import routine_gym  # noqa: F401  (registers MiniQbert-v0)
 from routine_gym.demo import Demo, shipped_demo_path
 from routine_gym.envs.miniqbert import MiniQbertEnv
 from routine_gym.imitation import (
-    FrameReplayMemory,
     agent_view_states,
     build_demo_transitions,
     primitive_transitions,
@@ -187,132 +185,6 @@ def test_demo_with_stored_observations_is_used_as_it_is():
                 meta={"env_id": "CartPole-v1", "num_actions": 2})  # no seeds: not replayable
     states = agent_view_states(demo, "CartPole-v1")
     np.testing.assert_array_equal(states, [[0, 1], [2, 3], [4, 5], [9, 9]])
-
-
-# -- the replay memory -------------------------------------------------------------------------
-
-
-def _stack(*values: int) -> np.ndarray:
-    return np.array(values, dtype=np.uint8).reshape(len(values), 1, 1)
-
-
-def _all_transitions(memory: FrameReplayMemory) -> dict[str, np.ndarray]:
-    index = np.flatnonzero(memory._valid(np.arange(memory.capacity)))
-    return {
-        "index": index,
-        "obs": memory.stacks(index)[:, :, 0, 0],
-        "next_obs": memory.stacks((index + 1) % memory.capacity)[:, :, 0, 0],
-        "actions": memory.actions[index],
-        "lengths": memory.lengths[index],
-        "terminated": memory.terminated[index],
-    }
-
-
-def test_frame_memory_rebuilds_stacks_and_pads_them_with_the_first_frame_of_the_episode():
-    memory = FrameReplayMemory(16, (4, 1, 1), np.uint8, frame_stack=4)
-    assert memory.frames.shape == (16, 1, 1)  # one frame per entry, not a stack
-    memory.start_episode(_stack(1, 1, 1, 1))
-    memory.add(0, 1, False, _stack(1, 1, 1, 2))
-    memory.add(1, 3, False, _stack(1, 1, 2, 3))
-    memory.add(2, 1, True, _stack(1, 2, 3, 4))  # the final observation of episode 1
-    memory.start_episode(_stack(9, 9, 9, 9))
-    memory.add(3, 2, False, _stack(9, 9, 9, 10))
-    assert len(memory) == 4
-    t = _all_transitions(memory)
-    assert t["index"].tolist() == [0, 1, 2, 4]  # the final observation starts nothing
-    assert t["obs"].tolist() == [[1, 1, 1, 1], [1, 1, 1, 2], [1, 1, 2, 3], [9, 9, 9, 9]]
-    assert t["next_obs"].tolist() == [[1, 1, 1, 2], [1, 1, 2, 3], [1, 2, 3, 4], [9, 9, 9, 10]]
-    assert t["actions"].tolist() == [0, 1, 2, 3]
-    assert t["lengths"].tolist() == [1, 3, 1, 2]
-    assert t["terminated"].tolist() == [False, False, True, False]
-
-
-def test_frame_memory_never_samples_stacks_reaching_into_overwritten_slots():
-    memory = FrameReplayMemory(7, (4, 1, 1), np.uint8, frame_stack=4)
-    memory.start_episode(_stack(0, 0, 0, 0))
-    for t in range(1, 20):  # one long episode whose frame t is t
-        window = [max(t - j, 0) for j in (3, 2, 1, 0)]
-        memory.add(t % 5, 1, False, _stack(*window))
-    assert memory.full and len(memory) == 3  # 7 slots: newest has no next, 3 oldest lack history
-    batch = memory.sample(200, np.random.default_rng(0))
-    newest = batch["obs"][:, -1, 0, 0].astype(int)
-    assert set(newest.tolist()) == {16, 17, 18}  # frames 13..19 are kept
-    for obs, next_obs, last in zip(batch["obs"][:, :, 0, 0], batch["next_obs"][:, :, 0, 0],
-                                   newest, strict=True):
-        assert obs.tolist() == [last - 3, last - 2, last - 1, last]
-        assert next_obs.tolist() == [last - 2, last - 1, last, last + 1]
-    assert (batch["actions"] == (newest + 1) % 5).all()
-
-
-class _Counter(gym.Env):
-    """Frames count the steps; episodes of 2–5 steps end by termination or truncation."""
-
-    observation_space = gym.spaces.Box(0, 255, (2, 3), np.uint8)
-    action_space = gym.spaces.Discrete(2)
-
-    def reset(self, *, seed=None, options=None):
-        super().reset(seed=seed)
-        self.t, self.horizon = 0, int(self.np_random.integers(2, 6))
-        self.base = int(self.np_random.integers(0, 200))
-        return self._obs(), {}
-
-    def _obs(self):
-        return np.full((2, 3), self.base + self.t, dtype=np.uint8)
-
-    def step(self, action):
-        self.t += 1
-        done = self.t == self.horizon
-        return self._obs(), 0.0, done and action == 0, done and action == 1, {}
-
-
-def test_frame_memory_reproduces_frame_stack_observation_exactly():
-    env = gym.wrappers.FrameStackObservation(_Counter(), 4)
-    memory = FrameReplayMemory(10_000, (4, 2, 3), np.uint8, frame_stack=4)
-    rng = np.random.default_rng(0)
-    seen = []
-    obs, _ = env.reset(seed=0)
-    memory.start_episode(obs)
-    for _ in range(300):
-        action = int(rng.integers(2))
-        next_obs, _, terminated, truncated, _ = env.step(action)
-        memory.add(action, 1, terminated, next_obs)
-        seen.append((obs, action, next_obs, terminated))
-        obs = next_obs
-        if terminated or truncated:
-            obs, _ = env.reset()
-            memory.start_episode(obs)
-    t = _all_transitions(memory)
-    assert len(t["index"]) == len(seen) == len(memory)
-    index = t["index"]
-    for i, (o, a, o2, term) in enumerate(seen):
-        np.testing.assert_array_equal(memory.stacks(index[i : i + 1])[0], o)
-        np.testing.assert_array_equal(memory.stacks(index[i : i + 1] + 1)[0], o2)
-        assert memory.actions[index[i]] == a and memory.terminated[index[i]] == term
-
-
-def test_frame_memory_without_stacking_stores_whole_observations():
-    memory = FrameReplayMemory(8, (3,), np.float32)
-    memory.start_episode(np.zeros(3))
-    memory.add(1, 1, False, np.ones(3))
-    batch = memory.sample(4, np.random.default_rng(0))
-    assert batch["obs"].tolist() == [[0, 0, 0]] * 4
-    assert batch["next_obs"].tolist() == [[1, 1, 1]] * 4
-
-
-def test_frame_memory_rejects_misuse():
-    memory = FrameReplayMemory(8, (4, 1, 1), np.uint8, frame_stack=4)
-    with pytest.raises(RuntimeError, match="start_episode"):
-        memory.add(0, 1, False, _stack(1, 1, 1, 1))
-    with pytest.raises(ValueError, match="no transition"):
-        memory.sample(1, np.random.default_rng(0))
-    with pytest.raises(ValueError, match="one repeated frame"):
-        memory.start_episode(_stack(1, 2, 3, 4))
-    with pytest.raises(ValueError, match="shape"):
-        memory.start_episode(_stack(1, 1))
-    with pytest.raises(ValueError, match="frame_stack=4"):
-        FrameReplayMemory(8, (84, 84), np.uint8, frame_stack=4)
-    with pytest.raises(ValueError, match="capacity"):
-        FrameReplayMemory(3, (4, 1, 1), np.uint8, frame_stack=4)
 
 
 def test_the_docstring_examples_run():

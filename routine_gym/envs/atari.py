@@ -17,8 +17,10 @@ __all__ = ["EpisodicLife", "FireOnLifeLoss", "FireReset", "NoopReset", "is_atari
 
 
 def is_atari(env_id: str) -> bool:
-    """`ALE/Qbert-v5`, `QbertNoFrameskip-v4` and the like."""
-    return env_id.startswith("ALE/") or env_id.endswith("NoFrameskip-v4")
+    """`ALE/Qbert-v5`, `QbertNoFrameskip-v4`, `ale_py:ALE/Qbert-v5`: any env of ALE's."""
+    from routine_gym.envs import env_family
+
+    return env_family(env_id) == "atari"
 
 
 def _action_meanings(env: gym.Env) -> list[str]:

@@ -29,6 +29,7 @@ from gymnasium.wrappers import (
     TransformReward,
 )
 
+from routine_gym.envs import env_family
 from routine_gym.envs.atari import (
     EpisodicLife,
     FireOnLifeLoss,
@@ -54,11 +55,13 @@ COINRUN_ID = "procgen/CoinRun-v0"
 
 
 def is_miniqbert(env_id: str) -> bool:
-    return env_id.split("/")[-1].startswith("MiniQbert")
+    """`MiniQbert-v0`, by its registered entry point (`module:EnvId` ids too)."""
+    return env_family(env_id) == "miniqbert"
 
 
 def is_procgen(env_id: str) -> bool:
-    return env_id.startswith("procgen/")
+    """`procgen/CoinRun-v0`, by its registered entry point."""
+    return env_family(env_id) == "procgen"
 
 
 def default_env_kwargs(env_id: str) -> dict[str, Any]:
