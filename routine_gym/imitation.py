@@ -683,6 +683,7 @@ def evaluate_imitation(
         "episodes": episodes,
         "returns": returns,
         "lengths": played.episode_lengths.tolist(),
+        "decisions": [len(a) for a in trajectories],
         "alignments": alignments,
         "mean_return": float(np.mean(returns)),
         "std_return": float(np.std(returns)),

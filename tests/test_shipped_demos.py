@@ -6,6 +6,7 @@ import glob
 import os
 import warnings
 
+import numpy as np
 import pytest
 
 import routine_gym  # noqa: F401  (registers the envs)
@@ -13,10 +14,12 @@ from routine_gym.demo import (
     DEMO_SUITE,
     DEMOS_DIR,
     Demo,
+    demo_file_version,
     demo_filename,
     replay,
     shipped_demo_path,
 )
+from routine_gym.envs import env_family
 from routine_gym.imitation import load_demo
 from routine_gym.mining import SequiturMiner
 
@@ -66,3 +69,66 @@ def test_shipped_demo_mines_routines(path):
         assert 1 <= len(library) <= 3
     assert all(len(r) >= 3 for r in library.routines)
     assert library.source["env_id"] == demo.env_id
+
+
+# -- format version 2: the demonstrator's decisions ------------------------------------------
+
+
+def _runs(mask):
+    """(start, end) of each run of True in a boolean array."""
+    padded = np.concatenate([[False], mask, [False]]).astype(np.int8)
+    edges = np.diff(padded)
+    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True))
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=os.path.basename)
+def test_shipped_demo_is_version_2_with_its_injected_steps_marked(path):
+    demo = Demo.load(path)
+    assert demo_file_version(path) == 2
+    if env_family(demo.env_id) != "atari":  # CoinRun and MiniQbert have no injecting wrapper
+        assert demo.num_injected == 0
+        return
+    meanings = demo.action_meanings
+    injected = _runs(~demo.decisions)
+    # The episode opens with the no-op start (1–30 NOOPs) and, where the game has FIRE, the
+    # fire reset's FIRE: all injected, and nothing else before the first decision.
+    start, end = injected[0]
+    opening = [meanings[a] for a in demo.actions[start:end]]
+    assert start == 0 and demo.decisions[end]
+    fire = "FIRE" in meanings
+    assert opening[-1] == ("FIRE" if fire else "NOOP")
+    assert set(opening[: -1 if fire else None]) == {"NOOP"}
+    assert 1 <= len(opening) - fire <= 30
+    # Every later injected run is a served life: NOOP then FIRE (FireOnLifeLoss), which the
+    # Qbert demo (recorded under routine-gym 0.1's stack) does not have.
+    served = [[meanings[a] for a in demo.actions[a:b]] for a, b in injected[1:]]
+    if demo.meta["recorded_under_stack"] == "agent-0.1":
+        assert served == []
+    else:
+        assert fire == bool(served)
+        assert all(run == ["NOOP", "FIRE"] for run in served)
+    assert demo.num_injected == sum(b - a for a, b in injected)
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=os.path.basename)
+def test_mining_a_shipped_demo_is_mining_its_decision_segments(path):
+    demo = Demo.load(path)
+    segments, starts = demo.decision_segments()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        from_demo = SequiturMiner().mine(demo)
+        from_segments = SequiturMiner().mine(segments)
+    assert from_demo.routines == from_segments.routines
+    assert from_demo.frequencies == from_segments.frequencies
+    assert from_demo.scores == from_segments.scores
+    # Occurrences are the segments' own, mapped back to the demo's steps: every one is the
+    # routine's actions, on decided steps only, so no routine overlaps an injected step.
+    offsets = demo.episode_offsets
+    for routine, occ, seg_occ in zip(from_demo.routines, from_demo.occurrences,
+                                     from_segments.occurrences, strict=True):
+        assert len(occ) == len(seg_occ) == from_demo.frequencies[from_demo.routines.index(routine)]
+        for (e, t), (s, u) in zip(occ, seg_occ, strict=True):
+            assert (e, t) == (starts[s][0], starts[s][1] + u)
+            first = int(offsets[e]) + t
+            assert tuple(demo.actions[first : first + len(routine)]) == routine
+            assert demo.decisions[first : first + len(routine)].all()
