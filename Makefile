@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml setup.py routine_gym/_sequitur.cpp
 	touch $(STAMP)
 
 test: $(STAMP)
-	$(PY) -m pytest -q -n 2 tests
+	$(PY) -m pytest -q -n 2 --doctest-modules routine_gym tests
 
 # RAPL-A2C on Qbert from the shipped demo, with a budget that ends in about 10 minutes on a
 # 2-core CPU; the paper's budget is `python algos/rapl_a2c.py --env-id ALE/Qbert-v5` (10M steps).

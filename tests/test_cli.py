@@ -305,7 +305,7 @@ def test_show_demos_lists_each_demo_with_its_mined_routines(capsys, tmp_path, sh
     out = capsys.readouterr().out
     assert "1 demo(s)" in out
     assert "MiniQbert-v0  (MiniQbert-v0.npz" in out
-    assert "score 1050, 39 steps, 1 episode(s)" in out
+    assert "score 1050, 39 steps (39 decided, 0 injected), 1 episode(s)" in out
     # The shipped MiniQbert demo mines to these two routines (see test_shipped_demos).
     assert "routine 0: LEFT DOWN LEFT DOWN  (f = 5)" in out
     assert "routine 1: RIGHT RIGHT RIGHT LEFT DOWN LEFT DOWN  (f = 3)" in out
