@@ -43,11 +43,9 @@ import routine_gym
 from routine_gym.atomic import atomic_write_text
 from routine_gym.checkpoint import resume_settings, write_checkpoint
 from routine_gym.demo import Demo, record_agent_demo, shipped_demo_path
-from routine_gym.envs import canonical_env_id, same_env
+from routine_gym.envs import profile_for, same_env
 from routine_gym.envs.factory import (
     default_env_kwargs,
-    is_atari,
-    is_procgen,
     make_env,
     make_primitive_env,
     preprocess,
@@ -267,10 +265,11 @@ def evaluate(agent: Agent, args: Args, library, device, episodes: int) -> dict:
         "mean_return": float(np.mean(returns)), "std_return": float(np.std(returns)),
         "env_kwargs": env_kwargs,
     }
-    if is_atari(args.env_id):
+    score_key = profile_for(args.env_id).score_key(args.env_id)
+    if score_key is not None:
         try:
             summary["human_normalized_score"] = human_normalized_score(
-                summary["mean_return"], canonical_env_id(args.env_id)
+                summary["mean_return"], score_key
             )
         except (KeyError, ValueError):
             pass
@@ -278,18 +277,17 @@ def evaluate(agent: Agent, args: Args, library, device, episodes: int) -> dict:
 
 
 def train_env_kwargs(args: Args) -> dict:
-    if is_procgen(args.env_id):
-        return {"num_levels": args.num_levels, "start_level": args.start_level,
-                "distribution_mode": args.distribution_mode}
-    return {}
+    """The training levels (Procgen); other envs have none."""
+    return profile_for(args.env_id).level_kwargs(
+        args.num_levels, args.start_level, args.distribution_mode, args.eval_distribution_mode,
+        training=True)
 
 
 def eval_env_kwargs(args: Args) -> dict:
     """Procgen is evaluated on levels never trained on; other envs as in training."""
-    if is_procgen(args.env_id):
-        return {"num_levels": 0, "start_level": args.start_level + args.num_levels,
-                "distribution_mode": args.eval_distribution_mode}
-    return {}
+    return profile_for(args.env_id).level_kwargs(
+        args.num_levels, args.start_level, args.distribution_mode, args.eval_distribution_mode,
+        training=False)
 
 
 def merge_final(info: dict, key: str, done: np.ndarray) -> np.ndarray:

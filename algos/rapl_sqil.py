@@ -55,7 +55,8 @@ from torch.utils.tensorboard import SummaryWriter
 
 import routine_gym
 from routine_gym.checkpoint import resume_settings, write_checkpoint
-from routine_gym.envs.factory import is_atari, make_env
+from routine_gym.envs import profile_for
+from routine_gym.envs.factory import make_env
 from routine_gym.imitation import (
     FrameReplayMemory,
     agent_view_states,
@@ -262,7 +263,7 @@ def main(args: Args) -> dict | None:
     # fused: one kernel per step instead of a dozen per tensor (8× faster on this CPU)
     optimizer = torch.optim.Adam(q_network.parameters(), lr=args.learning_rate, fused=True)
     memory = FrameReplayMemory(args.buffer_size, obs_space.shape, obs_space.dtype,
-                               frame_stack=4 if is_atari(args.env_id) else 1)
+                               frame_stack=profile_for(args.env_id).frame_stack)
     half = args.batch_size // 2
 
     global_step, updates = 0, 0

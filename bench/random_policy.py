@@ -22,7 +22,8 @@ from common import base_machine_info, load_average
 import routine_gym
 from routine_gym.atomic import atomic_write_text
 from routine_gym.demo import DEMO_SUITE
-from routine_gym.envs.factory import is_procgen, make_primitive_env
+from routine_gym.envs import profile_for
+from routine_gym.envs.factory import make_primitive_env
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -32,7 +33,7 @@ COINRUN_TRAIN_LEVELS = {"num_levels": 100, "start_level": 0, "distribution_mode"
 
 def random_scores(env_id: str, episodes: int, seed: int) -> dict:
     """Score and length of `episodes` random-policy episodes, the first seeded with `seed`."""
-    kwargs = COINRUN_TRAIN_LEVELS if is_procgen(env_id) else {}
+    kwargs = COINRUN_TRAIN_LEVELS if profile_for(env_id).has_levels else {}
     env = make_primitive_env(env_id, **kwargs)
     env.action_space.seed(seed)
     scores, lengths = [], []

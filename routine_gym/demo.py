@@ -1485,14 +1485,10 @@ class _EnoughEpisodes(Exception):
 
 
 def _default_play_fps(env: gym.Env) -> int | None:
-    # ALE's render_fps (30) plays frame-skipped Atari at twice its real speed; a human wants
-    # the console's 60 frames per second, i.e. 60 / frameskip steps per second.
-    spec = env.spec
-    if spec is not None and str(spec.entry_point).startswith("ale_py"):
-        frameskip = spec.kwargs.get("frameskip")
-        if isinstance(frameskip, int) and frameskip >= 1:
-            return max(1, round(60 / frameskip))
-    return None
+    """The env's profile's playing speed (Atari: real time), or None for `render_fps`."""
+    from routine_gym.envs import profile_for
+
+    return profile_for(env.spec.id).play_fps(env) if env.spec is not None else None
 
 
 def record_human_demo(

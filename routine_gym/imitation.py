@@ -47,10 +47,9 @@ from gymnasium.wrappers import RecordEpisodeStatistics
 
 from routine_gym.atomic import atomic_write_text
 from routine_gym.demo import Demo, record_agent_demo, replay, shipped_demo_path
-from routine_gym.envs import canonical_env_id, same_env
+from routine_gym.envs import profile_for, same_env
 from routine_gym.envs.factory import (
     default_env_kwargs,
-    is_atari,
     make_primitive_env,
     preprocess,
     preprocess_observation,
@@ -335,10 +334,11 @@ def agent_view_states(demo: Demo, env_id: str) -> np.ndarray:
         episode = source.episode(e)
         decided = demo.episode(e).decisions
         frames = np.concatenate([episode.observations[decided], episode.final_observation[None]])
-        if not is_atari(env_id):
+        playback = _FramePlayback(frames)
+        view = preprocess_observation(playback, env_id)
+        if view is playback:  # the agent sees the env's observations as they are
             states.append(frames)
             continue
-        view = preprocess_observation(_FramePlayback(frames), env_id)
         obs, _ = view.reset()
         stacked = [obs]
         for _ in range(len(frames) - 1):
@@ -693,13 +693,14 @@ def evaluate_imitation(
         "demo_length": len(reference),
         "env_kwargs": kwargs,
     }
-    if is_atari(env_id):
+    score_key = profile_for(env_id).score_key(env_id)
+    if score_key is not None:
         try:
             summary["human_normalized_score"] = float(
-                human_normalized_score(summary["mean_return"], canonical_env_id(env_id))
+                human_normalized_score(summary["mean_return"], score_key)
             )
         except ValueError:
-            pass  # an Atari game outside the published table
+            pass  # a game outside the published table
     return summary
 
 

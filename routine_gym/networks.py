@@ -2,8 +2,9 @@
 
 Nature CNN on Atari (Mnih et al. 2015), IMPALA CNN on Procgen (Espeholt et al. 2018, as in the
 Procgen paper), a 64-64 tanh MLP for flat observations and a small CNN for other images.
-`make_torso(env_id, obs_shape)` picks one; `ObservationEncoder` adds the scaling and the
-channel order, so a script's agent is a torso plus its heads.
+`make_torso(env_id, obs_shape)` builds the one the env's profile names (`EnvProfile.network`);
+`ObservationEncoder` adds the scaling and the channel order, so a script's agent is a torso
+plus its heads.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import numpy as np
 import torch
 import torch.nn as nn
 
-from routine_gym.envs.factory import is_atari, is_procgen
+from routine_gym.envs import profile_for
 
 __all__ = ["ObservationEncoder", "image_layout", "layer_init", "make_torso"]
 
@@ -59,13 +60,14 @@ def image_layout(shape: tuple[int, ...]) -> tuple[int, int, int, bool]:
 
 def make_torso(env_id: str, obs_shape: tuple[int, ...]) -> tuple[nn.Module, int]:
     """The feature extractor for `env_id`'s observations and its output size."""
+    network = profile_for(env_id).network
     if len(obs_shape) == 1:
         return nn.Sequential(
             layer_init(nn.Linear(obs_shape[0], 64)), nn.Tanh(),
             layer_init(nn.Linear(64, 64)), nn.Tanh(),
         ), 64
     c, h, w, _ = image_layout(obs_shape)
-    if is_atari(env_id):  # Nature CNN (Mnih et al. 2015)
+    if network == "nature_cnn":  # Nature CNN (Mnih et al. 2015)
         return nn.Sequential(
             layer_init(nn.Conv2d(c, 32, 8, stride=4)), nn.ReLU(),
             layer_init(nn.Conv2d(32, 64, 4, stride=2)), nn.ReLU(),
@@ -73,7 +75,7 @@ def make_torso(env_id: str, obs_shape: tuple[int, ...]) -> tuple[nn.Module, int]
             nn.Flatten(),
             layer_init(nn.Linear(64 * 7 * 7, 512)), nn.ReLU(),
         ), 512
-    if is_procgen(env_id):  # IMPALA CNN (Espeholt et al. 2018), as in the Procgen paper
+    if network == "impala_cnn":  # IMPALA CNN (Espeholt et al. 2018), as in the Procgen paper
         stages, channels = [], c
         for out in (16, 32, 32):
             stages.append(ImpalaStage(channels, out))

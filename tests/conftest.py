@@ -27,3 +27,9 @@ def pytest_configure(config: pytest.Config) -> None:
 def repo_root() -> Path:
     """The repository root (holds `algos/`, `demos/`, `routine_gym/`)."""
     return REPO_ROOT
+
+
+# Tests make ALE envs with gym.make directly; routine-gym registers ALE's ids on first use.
+import routine_gym  # noqa: E402
+
+routine_gym.register_envs()

@@ -12,17 +12,16 @@ import pytest
 from gymnasium.wrappers import RecordEpisodeStatistics, TransformReward
 
 import routine_gym  # noqa: F401  (registers MiniQbert, CoinRun and the ALE envs)
+from routine_gym.envs import env_family, profile_for
 from routine_gym.envs.atari import (
     EpisodicLife,
     FireOnLifeLoss,
     FireReset,
     NoopReset,
-    is_atari,
     sign_reward,
 )
 from routine_gym.envs.factory import (
     default_env_kwargs,
-    is_procgen,
     make_env,
     make_primitive_env,
     preprocess,
@@ -50,9 +49,10 @@ def episode_frames(env: gym.Env) -> int:
 
 
 def test_env_id_kinds():
-    assert is_atari("ALE/Qbert-v5") and is_atari("QbertNoFrameskip-v4")
-    assert not is_atari("CartPole-v1") and not is_atari("procgen/CoinRun-v0")
-    assert is_procgen("procgen/CoinRun-v0") and not is_procgen("ALE/Qbert-v5")
+    assert env_family("ALE/Qbert-v5") == env_family("QbertNoFrameskip-v4") == "atari"
+    assert env_family("CartPole-v1") == "generic" and env_family("procgen/CoinRun-v0") == "procgen"
+    assert profile_for("ALE/Qbert-v5").frame_stack == 4
+    assert profile_for("procgen/CoinRun-v0").frame_stack == 1
 
 
 def test_default_env_kwargs():

@@ -64,12 +64,18 @@ def test_installed_package_exports_the_user_api(installed):
         "import json, routine_gym\n"
         f"from routine_gym import {', '.join(USER_API)}\n"
         "import gymnasium as gym\n"
+        "import sys\n"
+        "own = 'MiniQbert-v0' in gym.registry and 'procgen/CoinRun-v0' in gym.registry\n"
+        "light = 'ale_py' not in sys.modules and 'procgen' not in sys.modules\n"
+        "routine_gym.register_envs()\n"
         "print(json.dumps({'file': routine_gym.__file__, 'all': routine_gym.__all__,\n"
-        "    'registered': 'MiniQbert-v0' in gym.registry and 'ALE/Qbert-v5' in gym.registry}))"
+        "    'own': own, 'light': light, 'ale': 'ALE/Qbert-v5' in gym.registry}))"
     ))
     assert Path(out["file"]).is_relative_to(installed["site"])
     assert set(USER_API) <= set(out["all"])
-    assert out["registered"]  # importing routine_gym registers the envs
+    assert out["own"]  # importing routine_gym registers its envs ...
+    assert out["light"]  # ... without loading ALE or Procgen
+    assert out["ale"]  # register_envs() adds ALE's
 
 
 @pytest.mark.slow

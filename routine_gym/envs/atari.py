@@ -1,4 +1,9 @@
-"""The standard Atari training wrappers that Gymnasium does not ship.
+"""Atari (ALE): its profile, and the standard training wrappers Gymnasium does not ship.
+
+The profile (`AtariProfile`, SPEC §5): ALE's own frame skip of 4 (the last frame observed) and
+grey frames in the primitive env; the agent's view adds no-op starts, (training only) a life
+loss ending the episode and sign-clipped rewards, FIRE on reset, (evaluation only) FIRE after
+a lost life, 84×84 frames in stacks of 4, and the Nature CNN.
 
 Gymnasium has the observation side (`GrayscaleObservation`, `ResizeObservation`,
 `FrameStackObservation`, `ClipReward`); the three reset-side habits of DQN/A2C training are
@@ -12,15 +17,19 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from gymnasium.wrappers import FrameStackObservation, ResizeObservation, TransformReward
 
-__all__ = ["EpisodicLife", "FireOnLifeLoss", "FireReset", "NoopReset", "is_atari"]
+from routine_gym.envs.profile import EnvProfile
 
-
-def is_atari(env_id: str) -> bool:
-    """`ALE/Qbert-v5`, `QbertNoFrameskip-v4`, `ale_py:ALE/Qbert-v5`: any env of ALE's."""
-    from routine_gym.envs import env_family
-
-    return env_family(env_id) == "atari"
+__all__ = [
+    "PROFILE",
+    "AtariProfile",
+    "EpisodicLife",
+    "FireOnLifeLoss",
+    "FireReset",
+    "NoopReset",
+    "sign_reward",
+]
 
 
 def _action_meanings(env: gym.Env) -> list[str]:
@@ -167,3 +176,61 @@ class FireOnLifeLoss(gym.Wrapper, gym.utils.RecordConstructorArgs):
 def sign_reward(reward: float) -> float:
     """Reward clipping for training: only the sign of a game's reward is kept."""
     return float(np.sign(reward))
+
+
+class AtariProfile(EnvProfile):
+    """ALE's games (`ALE/*-v5`, `*NoFrameskip-v4`): SPEC §5's preprocessing, the Nature CNN."""
+
+    family = "atari"
+    frame_stack = 4
+    network = "nature_cnn"
+
+    def default_kwargs(self, env_id: str) -> dict[str, Any]:
+        # `*NoFrameskip-v4` gets frameskip=4 too, so an agent step is 4 frames everywhere.
+        return {"frameskip": 4, "obs_type": "grayscale"}
+
+    def preprocess(self, env: gym.Env, env_id: str, *, training: bool = True,
+                   serve_lives: bool = True) -> gym.Env:
+        env = NoopReset(env, noop_max=30)
+        if training:
+            env = EpisodicLife(env)
+        if "FIRE" in env.unwrapped.get_action_meanings():
+            if not training and serve_lives:  # each life starts as in training (EpisodicLife
+                # + FireReset fire there)
+                env = FireOnLifeLoss(env)
+            env = FireReset(env)
+        if training:
+            env = TransformReward(env, sign_reward)
+        return self.observation_view(env, env_id)
+
+    def observation_view(self, env: gym.Env, env_id: str) -> gym.Env:
+        if len(env.observation_space.shape) == 3:  # an RGB primitive env
+            env = gym.wrappers.GrayscaleObservation(env)
+        env = ResizeObservation(env, (84, 84))
+        return FrameStackObservation(env, self.frame_stack)
+
+    def recording_stacks(self, env_id: str):
+        stacks = super().recording_stacks(env_id)
+        # routine-gym 0.1's evaluation stack had no FireOnLifeLoss (the first Qbert demo).
+        return {
+            "agent": stacks["agent"],
+            "agent-0.1": lambda env: self.preprocess(env, env_id, training=False,
+                                                     serve_lives=False),
+            "raw": stacks["raw"],
+        }
+
+    def score_key(self, env_id: str) -> str | None:
+        from routine_gym.envs import canonical_env_id
+
+        return canonical_env_id(env_id)
+
+    def play_fps(self, env: gym.Env) -> int | None:
+        # ALE's render_fps (30) plays frame-skipped Atari at twice its real speed; a human
+        # wants the console's 60 frames per second, i.e. 60 / frameskip steps per second.
+        frameskip = env.spec.kwargs.get("frameskip") if env.spec is not None else None
+        if isinstance(frameskip, int) and frameskip >= 1:
+            return max(1, round(60 / frameskip))
+        return None
+
+
+PROFILE = AtariProfile()

@@ -4,12 +4,10 @@ Two layers, so that a demonstration is always of *primitive* actions and replays
 `gym.make(env_id, **env_kwargs)` alone:
 
 1. `make_primitive_env(env_id, **kwargs)`: the env whose actions are the primitive actions the
-   routines are made of. For Atari that is ALE with its own frame skip of 4 (the last frame
-   observed) and grey observations; `*NoFrameskip-v4` ids get `frameskip=4` too, so an agent
-   step is 4 frames everywhere. This is the env a `DemoRecorder` records.
-2. `preprocess(env, env_id, training=...)`: the agent's view on top. Atari: no-op starts,
-   (training only) a life loss ends the episode, FIRE on reset, reward sign-clipping, 84×84,
-   4-frame stack. Procgen and other envs are used as they are.
+   routines are made of, with the family's default kwargs (Atari: ALE's own frame skip of 4,
+   grey frames). This is the env a `DemoRecorder` records.
+2. `preprocess(env, env_id, training=...)`: the agent's view on top, as the env's profile
+   (`routine_gym.envs.profile_for`) defines it.
 
 `make_env(...)` returns a thunk for vector envs, CleanRL style, with
 `RecordEpisodeStatistics` directly on the primitive env (so the logged return is the real,
@@ -22,28 +20,12 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import gymnasium as gym
-from gymnasium.wrappers import (
-    FrameStackObservation,
-    RecordEpisodeStatistics,
-    ResizeObservation,
-    TransformReward,
-)
+from gymnasium.wrappers import RecordEpisodeStatistics
 
-from routine_gym.envs import env_family
-from routine_gym.envs.atari import (
-    EpisodicLife,
-    FireOnLifeLoss,
-    FireReset,
-    NoopReset,
-    is_atari,
-    sign_reward,
-)
+from routine_gym.envs import profile_for
 
 __all__ = [
     "default_env_kwargs",
-    "is_atari",
-    "is_miniqbert",
-    "is_procgen",
     "make_env",
     "make_primitive_env",
     "preprocess",
@@ -51,24 +33,10 @@ __all__ = [
     "recording_stacks",
 ]
 
-COINRUN_ID = "procgen/CoinRun-v0"
-
-
-def is_miniqbert(env_id: str) -> bool:
-    """`MiniQbert-v0`, by its registered entry point (`module:EnvId` ids too)."""
-    return env_family(env_id) == "miniqbert"
-
-
-def is_procgen(env_id: str) -> bool:
-    """`procgen/CoinRun-v0`, by its registered entry point."""
-    return env_family(env_id) == "procgen"
-
 
 def default_env_kwargs(env_id: str) -> dict[str, Any]:
     """The `gym.make` keyword arguments routine-gym uses for `env_id` unless told otherwise."""
-    if is_atari(env_id):
-        return {"frameskip": 4, "obs_type": "grayscale"}
-    return {}
+    return profile_for(env_id).default_kwargs(env_id)
 
 
 def make_primitive_env(env_id: str, render_mode: str | None = None, **kwargs: Any) -> gym.Env:
@@ -82,31 +50,15 @@ def make_primitive_env(env_id: str, render_mode: str | None = None, **kwargs: An
 def preprocess(
     env: gym.Env, env_id: str, *, training: bool = True, serve_lives: bool = True
 ) -> gym.Env:
-    """Add the agent's standard preprocessing on top of a primitive env.
+    """Add the agent's standard preprocessing on top of a primitive env (the profile's).
 
     Atari: no-op starts, FIRE, 84×84 grey 4-stacks; in training a life loss also ends the
-    episode and rewards are sign-clipped. MiniQbert, a Qbert in miniature, is trained as Qbert
-    is: a life loss ends the training episode (otherwise falling off is a free teleport back to
-    the top, and agents learn to spend lives on it until the last one runs out).
-
-    `serve_lives=False` leaves `FireOnLifeLoss` out of the evaluation stack: the stack of
-    routine-gym 0.1, which the first shipped Qbert demo was recorded under.
+    episode and rewards are sign-clipped; in evaluation each new life is served with FIRE
+    (`serve_lives=False` leaves that out: routine-gym 0.1's stack). MiniQbert: a life loss ends
+    the training episode. Other families: as they are.
     """
-    if is_miniqbert(env_id):
-        return EpisodicLife(env) if training else env
-    if not is_atari(env_id):
-        return env
-    env = NoopReset(env, noop_max=30)
-    if training:
-        env = EpisodicLife(env)
-    if "FIRE" in env.unwrapped.get_action_meanings():
-        if not training and serve_lives:  # each life starts as in training (EpisodicLife +
-            # FireReset fire there)
-            env = FireOnLifeLoss(env)
-        env = FireReset(env)
-    if training:
-        env = TransformReward(env, sign_reward)
-    return preprocess_observation(env, env_id)
+    return profile_for(env_id).preprocess(env, env_id, training=training,
+                                          serve_lives=serve_lives)
 
 
 def recording_stacks(env_id: str) -> dict[str, Callable[[gym.Env], gym.Env]]:
@@ -114,28 +66,16 @@ def recording_stacks(env_id: str) -> dict[str, Callable[[gym.Env], gym.Env]]:
 
     `routine-gym upgrade` replays a version-1 demo through each in turn to find which steps
     the preprocessing injected. `agent` is today's evaluation view (`preprocess(...,
-    training=False)`, what `rapl_a2c.py --record-demo` records under); `agent-0.1` the same
-    without `FireOnLifeLoss` (routine-gym 0.1), only where it differs; `raw` no preprocessing
-    (the CLI's `record` and `play`), where every step is a decision.
+    training=False)`, what `rapl_a2c.py --record-demo` records under); Atari adds `agent-0.1`,
+    the same without `FireOnLifeLoss` (routine-gym 0.1); `raw` is no preprocessing (the CLI's
+    `record` and `play`), where every step is a decision.
     """
-    stacks: dict[str, Callable[[gym.Env], gym.Env]] = {
-        "agent": lambda env: preprocess(env, env_id, training=False),
-    }
-    if is_atari(env_id):
-        stacks["agent-0.1"] = lambda env: preprocess(env, env_id, training=False,
-                                                     serve_lives=False)
-    stacks["raw"] = lambda env: env
-    return stacks
+    return profile_for(env_id).recording_stacks(env_id)
 
 
 def preprocess_observation(env: gym.Env, env_id: str) -> gym.Env:
     """The observation side of `preprocess` alone: Atari frames to 84×84 grey, stacked by 4."""
-    if not is_atari(env_id):
-        return env
-    if len(env.observation_space.shape) == 3:  # an RGB primitive env
-        env = gym.wrappers.GrayscaleObservation(env)
-    env = ResizeObservation(env, (84, 84))
-    return FrameStackObservation(env, 4)
+    return profile_for(env_id).observation_view(env, env_id)
 
 
 def make_env(

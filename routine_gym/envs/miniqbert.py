@@ -71,6 +71,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from routine_gym.envs.profile import EnvProfile
+
 NOOP, FIRE, UP, RIGHT, LEFT, DOWN = range(6)
 ACTION_MEANINGS: tuple[str, ...] = ("NOOP", "FIRE", "UP", "RIGHT", "LEFT", "DOWN")
 
@@ -556,3 +558,20 @@ def scripted_expert(
     else:
         raise TypeError(f"scripted_expert needs a MiniQbertEnv or an int size, got {env_or_size!r}")
     return ScriptedExpert(size, noise=noise, rng=rng)
+
+
+class MiniQbertProfile(EnvProfile):
+    """MiniQbert, a Qbert in miniature, trains as Qbert does: a life loss ends the training
+    episode (otherwise falling off is a free teleport back to the top, and agents learn to
+    spend lives on it until the last one runs out). Evaluation plays the full game."""
+
+    family = "miniqbert"
+
+    def preprocess(self, env: gym.Env, env_id: str, *, training: bool = True,
+                   serve_lives: bool = True) -> gym.Env:
+        from routine_gym.envs.atari import EpisodicLife
+
+        return EpisodicLife(env) if training else env
+
+
+PROFILE = MiniQbertProfile()

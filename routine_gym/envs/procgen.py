@@ -15,13 +15,15 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from routine_gym.envs.profile import EnvProfile
+
 with contextlib.redirect_stderr(io.StringIO()):
     # procgen imports the legacy `gym` package only to register its old envs, and `gym` prints
     # an "unmaintained" notice on import; nothing here uses `gym`, so the notice is noise.
     import procgen
     from procgen.env import DISTRIBUTION_MODE_DICT, ENV_NAMES
 
-__all__ = ["MINIMAL_ACTIONS", "PROCGEN_TIMEOUT", "ProcgenEnv"]
+__all__ = ["MINIMAL_ACTIONS", "PROCGEN_TIMEOUT", "PROFILE", "ProcgenEnv", "ProcgenProfile"]
 
 #: The paper's CoinRun action set, as (name, button combination) pairs in action order.
 MINIMAL_ACTIONS: tuple[tuple[str, tuple[str, ...]], ...] = (
@@ -255,3 +257,24 @@ class ProcgenEnv(gym.Env[np.ndarray, int]):
         """Free the Procgen game."""
         self._game.close()
         super().close()
+
+
+class ProcgenProfile(EnvProfile):
+    """Procgen (CoinRun): no frame stack, the IMPALA CNN, trained on some levels and evaluated
+    on unseen ones (SPEC §5: 100 easy training levels; unseen easy or hard levels)."""
+
+    family = "procgen"
+    network = "impala_cnn"
+    has_levels = True
+
+    def level_kwargs(self, num_levels: int, start_level: int, distribution_mode: str,
+                     eval_distribution_mode: str, *, training: bool) -> dict[str, Any]:
+        if training:
+            return {"num_levels": num_levels, "start_level": start_level,
+                    "distribution_mode": distribution_mode}
+        # Evaluation: the levels after the training ones, never seen in training.
+        return {"num_levels": 0, "start_level": start_level + num_levels,
+                "distribution_mode": eval_distribution_mode}
+
+
+PROFILE = ProcgenProfile()
