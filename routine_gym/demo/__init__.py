@@ -1,0 +1,51 @@
+"""Demonstrations: record, save, load, verify and replay the episodes RAPL learns from.
+
+One module per idea; every public name is importable from `routine_gym.demo` itself.
+
+- `routine_gym.demo.format`: the demonstration and its file: `Demo`, `DemoEpisode`, which steps
+  are decisions and which are injected, the `.npz` format (versions 1 and 2) with its save and
+  load, and `demo_file_version`.
+- `routine_gym.demo.recorder`: `DemoRecorder`, which records the raw env's steps as a `Demo`,
+  and `DecisionMarker`, which tells it which steps the demonstrator decided.
+- `routine_gym.demo.replay`: `replay`, which re-runs a demo from its seeds and verifies it
+  (`ReplayResult`, `DemoReplayError`), and `upgrade_demo`, which rewrites a version-1 demo as
+  version 2 by replaying it.
+- `routine_gym.demo.collect`: demos from a trained agent (`record_agent_demo`) or a person at
+  the keyboard (`record_human_demo`).
+- `routine_gym.demo.suite`: the demos shipped with routine-gym: `DEMO_SUITE`, `DEMOS_DIR`,
+  `demo_filename`, `shipped_demo_path`.
+"""
+
+from routine_gym.demo.collect import record_agent_demo, record_human_demo
+from routine_gym.demo.format import (
+    DEMO_FORMAT,
+    DEMO_VERSION,
+    READABLE_VERSIONS,
+    Demo,
+    DemoEpisode,
+    demo_file_version,
+)
+from routine_gym.demo.recorder import DecisionMarker, DemoRecorder
+from routine_gym.demo.replay import DemoReplayError, ReplayResult, replay, upgrade_demo
+from routine_gym.demo.suite import DEMO_SUITE, DEMOS_DIR, demo_filename, shipped_demo_path
+
+__all__ = [
+    "DEMOS_DIR",
+    "DEMO_FORMAT",
+    "DEMO_SUITE",
+    "DEMO_VERSION",
+    "Demo",
+    "DemoEpisode",
+    "DemoRecorder",
+    "DemoReplayError",
+    "ReplayResult",
+    "DecisionMarker",
+    "READABLE_VERSIONS",
+    "demo_file_version",
+    "demo_filename",
+    "upgrade_demo",
+    "record_agent_demo",
+    "record_human_demo",
+    "replay",
+    "shipped_demo_path",
+]
