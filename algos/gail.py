@@ -16,19 +16,17 @@ The first is positive (a survival bonus: it favours long episodes), the second n
 favours ending episodes early); both are the usual choices of the GAIL literature. Each
 iteration collects a rollout, updates D on it (against as many demo pairs), relabels the rollout
 with the updated D, then runs the PPO update. `--total-timesteps` counts primitive env steps.
-The trained policy is evaluated like BC's and SQIL's (`evaluate_imitation`), in `eval.json`.
+The trained policy is evaluated like every script's (`evaluate_policy`), in `eval.json`.
 With `--checkpoint-every` a killed run resumes (`--resume`) from its last checkpoint: networks,
 optimizers, step count and random generators as they were; the envs start fresh episodes.
 """
 
 from __future__ import annotations
 
-import json
 import os
-import random
 import time
 import warnings
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Literal
 
 import gymnasium as gym
@@ -36,23 +34,15 @@ import numpy as np
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
-import tyro
 from torch.distributions.categorical import Categorical
-from torch.utils.tensorboard import SummaryWriter
 
 import routine_gym
-from routine_gym.checkpoint import resume_settings, write_checkpoint
 from routine_gym.envs.factory import make_env
-from routine_gym.imitation import (
-    agent_view_states,
-    build_demo_transitions,
-    check_demo_env,
-    evaluate_imitation,
-    load_demo,
-    save_evaluation,
-)
+from routine_gym.evaluation import evaluate_policy, save_evaluation
+from routine_gym.imitation import agent_view_states, demo_pairs
+from routine_gym.loading import check_demo_env, load_demo
 from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.rng import rng_state, set_rng_state
+from routine_gym.run import parse_args, start_run
 
 
 @dataclass
@@ -169,58 +159,15 @@ CHECKPOINT_KEYS = ("agent", "discriminator", "optimizer", "disc_optimizer", "glo
                    "args")
 
 
-def save_checkpoint(path: str, agent: Agent, discriminator: Discriminator, optimizer,
-                    disc_optimizer, global_step: int, args: Args,
-                    rng: np.random.Generator) -> None:
-    """Write a resumable checkpoint atomically (a kill mid-write keeps the previous one)."""
-    write_checkpoint(
-        {
-            "agent": agent.state_dict(),
-            "discriminator": discriminator.state_dict(),
-            "optimizer": optimizer.state_dict(),
-            "disc_optimizer": disc_optimizer.state_dict(),
-            "global_step": global_step,
-            "rng": rng_state(rng),
-            "args": json.dumps(asdict(args)),
-        },
-        path,
-    )
-
-
 def main(args: Args) -> dict | None:
-    for name in ("num_envs", "num_steps", "num_minibatches", "update_epochs", "disc_minibatches"):
-        if getattr(args, name) < 1:
-            raise ValueError(f"--{name.replace('_', '-')} needs to be ≥ 1, "
-                             f"actual value: {getattr(args, name)}")
-    if args.resume:
-        # The saved settings; an explicit --total-timesteps may raise the budget.
-        args, checkpoint, run_path = resume_settings(args, CHECKPOINT_KEYS, "gail.py")
-        run_name = os.path.basename(run_path)
-    else:
-        checkpoint = None
-        env_name = args.env_id.replace("/", "-")
-        run_name = f"{env_name}__{args.exp_name}__{args.seed}__{int(time.time())}"
-        run_path = os.path.join(args.run_dir, run_name)
-    os.makedirs(run_path, exist_ok=True)
-    writer = SummaryWriter(run_path)
-    writer.add_text(
-        "hyperparameters",
-        "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in vars(args).items()),
-    )
-    random.seed(args.seed)
-    np.random.seed(args.seed)
-    torch.manual_seed(args.seed)
-    rng = np.random.default_rng(args.seed)
-    torch.backends.cudnn.deterministic = args.torch_deterministic
-    if args.torch_threads > 0:
-        torch.set_num_threads(args.torch_threads)
-    device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
+    run = start_run(args, "gail.py", CHECKPOINT_KEYS)
+    args, device, rng, writer = run.args, run.device, run.rng, run.writer
 
-    # The demo's (state, action) pairs in the agent's view.
+    # The demo's (state, action) pairs: one per decision, with states in the agent's view.
     demo, args.demo = load_demo(args.env_id, args.demo)
     num_actions = check_demo_env(demo, args.env_id)
-    pairs = build_demo_transitions(demo, agent_view_states(demo, args.env_id), gamma=1.0)
-    demo_obs = torch.as_tensor(pairs.states[pairs.state_index], device=device)
+    pairs = demo_pairs(demo, agent_view_states(demo, args.env_id))
+    demo_obs = torch.as_tensor(pairs.observations, device=device)
     demo_actions = torch.as_tensor(pairs.actions, device=device)
     print(f"demo {args.demo}: score {demo.score:g}, {len(pairs)} (state, action) pairs",
           flush=True)
@@ -249,15 +196,22 @@ def main(args: Args) -> dict | None:
     values = torch.zeros((args.num_steps, args.num_envs), device=device)
 
     global_step = 0
-    if checkpoint is not None:
-        agent.load_state_dict(checkpoint["agent"])
-        discriminator.load_state_dict(checkpoint["discriminator"])
-        optimizer.load_state_dict(checkpoint["optimizer"])
-        disc_optimizer.load_state_dict(checkpoint["disc_optimizer"])
-        global_step = checkpoint["global_step"]
-        set_rng_state(checkpoint["rng"], rng)
-        print(f"resumed {run_name} at step {global_step}")
-    checkpoint_path = os.path.join(run_path, "checkpoint.pt")
+    if run.checkpoint is not None:
+        agent.load_state_dict(run.checkpoint["agent"])
+        discriminator.load_state_dict(run.checkpoint["discriminator"])
+        optimizer.load_state_dict(run.checkpoint["optimizer"])
+        disc_optimizer.load_state_dict(run.checkpoint["disc_optimizer"])
+        global_step = run.checkpoint["global_step"]
+        run.restore_rng()
+        print(f"resumed {run.name} at step {global_step}")
+
+    def save_checkpoint() -> None:
+        run.save_checkpoint({
+            "agent": agent.state_dict(), "discriminator": discriminator.state_dict(),
+            "optimizer": optimizer.state_dict(), "disc_optimizer": disc_optimizer.state_dict(),
+            "global_step": global_step,
+        })
+
     next_checkpoint = (global_step // args.checkpoint_every + 1) * args.checkpoint_every \
         if args.checkpoint_every > 0 else None
 
@@ -402,20 +356,14 @@ def main(args: Args) -> dict | None:
                   f"disc loss {disc_loss.item():.3f}  gail reward {rewards.mean().item():.3f}",
                   flush=True)
         if next_checkpoint is not None and global_step >= next_checkpoint:
-            save_checkpoint(checkpoint_path, agent, discriminator, optimizer, disc_optimizer,
-                            global_step, args, rng)
+            save_checkpoint()
             next_checkpoint = (global_step // args.checkpoint_every + 1) * args.checkpoint_every
 
     envs.close()
     if args.checkpoint_every > 0:
-        save_checkpoint(checkpoint_path, agent, discriminator, optimizer, disc_optimizer,
-                        global_step, args, rng)
+        save_checkpoint()
     if args.save_model:
-        model_path = os.path.join(run_path, "model.pt")
-        torch.save({"agent": agent.state_dict(), "discriminator": discriminator.state_dict()},
-                   model_path + ".tmp")
-        os.replace(model_path + ".tmp", model_path)
-        print(f"model saved to {model_path}")
+        run.save_model({"agent": agent, "discriminator": discriminator})
 
     summary = None
     if args.eval_episodes > 0:
@@ -428,10 +376,10 @@ def main(args: Args) -> dict | None:
                 return int(logits.argmax())
             return int(Categorical(logits=logits).sample())
 
-        summary = evaluate_imitation(args.env_id, act, demo, args.eval_episodes,
-                                     seed=args.seed + 10_000, max_steps=args.eval_max_steps)
+        summary = evaluate_policy(args.env_id, act, args.eval_episodes, seed=args.seed + 10_000,
+                                  demo=demo, max_steps=args.eval_max_steps)
         summary.update(method="gail", global_step=global_step)
-        save_evaluation(summary, run_path, writer, global_step)
+        save_evaluation(summary, run.path, writer, global_step)
     writer.close()
     return summary
 
@@ -439,4 +387,4 @@ def main(args: Args) -> dict | None:
 if __name__ == "__main__":
     warnings.filterwarnings("ignore", category=DeprecationWarning)
     routine_gym.register_envs()
-    main(tyro.cli(Args))
+    main(parse_args(Args))

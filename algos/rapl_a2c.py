@@ -24,35 +24,30 @@ from __future__ import annotations
 
 import json
 import os
-import random
 import sys
 import time
 import warnings
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Literal
 
 import gymnasium as gym
 import numpy as np
 import torch
 import torch.nn as nn
-import tyro
 from torch.distributions.categorical import Categorical
-from torch.utils.tensorboard import SummaryWriter
 
 import routine_gym
-from routine_gym.atomic import atomic_write_text
-from routine_gym.checkpoint import resume_settings, write_checkpoint
-from routine_gym.demo import Demo, record_agent_demo, shipped_demo_path
-from routine_gym.envs import profile_for, same_env
+from routine_gym.demo import record_agent_demo
+from routine_gym.envs import profile_for
 from routine_gym.envs.factory import (
     default_env_kwargs,
     make_env,
     make_primitive_env,
     preprocess,
 )
+from routine_gym.evaluation import evaluate_policy, save_evaluation
 from routine_gym.library import RoutineLibrary
-from routine_gym.metrics import human_normalized_score
-from routine_gym.mining import make_proposer
+from routine_gym.loading import load_demo, load_routines
 from routine_gym.networks import ObservationEncoder, layer_init
 from routine_gym.returns import (
     decision_returns,
@@ -61,7 +56,7 @@ from routine_gym.returns import (
     primitive_returns,
     routine_reward_and_discount,
 )
-from routine_gym.rng import rng_state, set_rng_state
+from routine_gym.run import parse_args, start_run
 
 
 @dataclass
@@ -116,8 +111,8 @@ class Args:
     # Routines
     demo: str | None = None
     """demo to mine routines from (default: the shipped demo of the env in demos/)"""
-    routines: str | None = None
-    """a routine library JSON to use instead of mining a demo"""
+    routine_library: str | None = None
+    """a routine library JSON to use (its best K) instead of mining a demo"""
     num_routines: int = 3
     """K, the number of routines to mine"""
     length_weight: float = 0.1
@@ -178,102 +173,8 @@ class Agent(nn.Module):
         return action, dist.log_prob(action), dist.entropy(), self.critic(hidden).squeeze(-1)
 
 
-# ---------------------------------------------------------------------------------------------
-# Routines, checkpoints, evaluation
-# ---------------------------------------------------------------------------------------------
-
-
-def load_routines(args: Args) -> RoutineLibrary | None:
-    """The routine library of this run: from --routines, --demo, or the shipped demo."""
-    if args.mode == "a2c":
-        return None
-    if args.routines:
-        library = RoutineLibrary.load(args.routines)
-        if not same_env(library.source.get("env_id"), args.env_id):
-            raise ValueError(
-                f"{args.routines} was mined from a demo of {library.source['env_id']}, "
-                f"not {args.env_id}"
-            )
-        return _nonempty(library, args.routines, args)
-    demo_path = args.demo or shipped_demo_path(args.env_id)
-    if demo_path is None:
-        raise SystemExit(
-            f"--mode {args.mode} needs routines, and no demo of {args.env_id} ships in demos/.\n"
-            f"Record one, then pass it with --demo:\n"
-            f"  routine-gym record {args.env_id} --policy random --episodes 10 --out demo.npz\n"
-            f"  python algos/rapl_a2c.py --env-id {args.env_id} --mode a2c "
-            f"--record-demo demo.npz   # a trained A2C expert's demo, as in the paper\n"
-            f"or give a mined library with --routines LIB.json (routine-gym mine DEMO --out ...)"
-        )
-    demo = Demo.load(demo_path, env_id=args.env_id)
-    proposer = make_proposer(
-        args.proposer, args.num_routines, args.length_weight, args.alpha, seed=args.seed
-    )
-    return _nonempty(proposer.mine(demo, source={"path": demo_path}), demo_path, args)
-
-
-def _nonempty(library: RoutineLibrary, where: str, args: Args) -> RoutineLibrary:
-    # Without routines the action space has nothing to add and no routine info to learn from.
-    if len(library) == 0:
-        raise SystemExit(
-            f"--mode {args.mode} found no routine in {where} (the demo may be too short or "
-            f"too varied); use --mode a2c, a longer demo, or a smaller --alpha"
-        )
-    return library
-
-
 #: What a checkpoint of this script holds (`--resume` checks for each).
 CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "rng", "args", "library")
-
-
-def save_checkpoint(path: str, agent, optimizer, global_step: int, iteration: int,
-                    args: Args, library: RoutineLibrary | None) -> None:
-    """Write a resumable checkpoint atomically (a kill mid-write keeps the previous one)."""
-    write_checkpoint(
-        {
-            "model": agent.state_dict(),
-            "optimizer": optimizer.state_dict(),
-            "global_step": global_step,
-            "iteration": iteration,
-            "rng": rng_state(),
-            "args": json.dumps(asdict(args)),
-            "library": json.dumps(library.to_dict()) if library is not None else "",
-        },
-        path,
-    )
-
-
-def evaluate(agent: Agent, args: Args, library, device, episodes: int) -> dict:
-    """Run the trained policy for `episodes` full games (no training wrappers)."""
-    env_kwargs = eval_env_kwargs(args)
-    env = make_env(args.env_id, args.seed + 10_000, routines=library, training=False,
-                   env_kwargs=env_kwargs)()
-    returns, lengths = [], []
-    obs, _ = env.reset(seed=args.seed + 10_000)
-    while len(returns) < episodes:
-        with torch.no_grad():
-            action, _, _, _ = agent.get_action_and_value(torch.as_tensor(obs[None], device=device))
-        obs, _, terminated, truncated, info = env.step(int(action[0]))
-        if terminated or truncated:
-            returns.append(float(info["episode"]["r"]))
-            lengths.append(int(info["episode"]["l"]))
-            obs, _ = env.reset()
-    env.close()
-    summary = {
-        "env_id": args.env_id, "mode": args.mode, "episodes": episodes,
-        "returns": returns, "lengths": lengths,
-        "mean_return": float(np.mean(returns)), "std_return": float(np.std(returns)),
-        "env_kwargs": env_kwargs,
-    }
-    score_key = profile_for(args.env_id).score_key(args.env_id)
-    if score_key is not None:
-        try:
-            summary["human_normalized_score"] = human_normalized_score(
-                summary["mean_return"], score_key
-            )
-        except (KeyError, ValueError):
-            pass
-    return summary
 
 
 def train_env_kwargs(args: Args) -> dict:
@@ -307,51 +208,36 @@ def merge_final(info: dict, key: str, done: np.ndarray) -> np.ndarray:
 
 
 def main(args: Args) -> None:
-    if not args.reward_scale > 0:
-        raise ValueError(f"--reward-scale needs to be > 0, actual value: {args.reward_scale}")
-    if args.resume:
-        # The saved settings. An explicit --total-timesteps sets a new budget: higher to train
-        # on, or at most the steps done to go straight to evaluation and demo recording.
-        args, checkpoint, run_path = resume_settings(args, CHECKPOINT_KEYS, "rapl_a2c.py",
-                                                     lower_budget=True)
-        run_name = os.path.basename(run_path)
-    else:
-        checkpoint = None
-        env_name = args.env_id.replace("/", "-")
-        run_name = f"{env_name}__{args.exp_name}__{args.seed}__{int(time.time())}"
-        run_path = os.path.join(args.run_dir, run_name)
-    os.makedirs(run_path, exist_ok=True)
-    writer = SummaryWriter(run_path)
-    writer.add_text(
-        "hyperparameters",
-        "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in vars(args).items()),
-    )
-
-    random.seed(args.seed)
-    np.random.seed(args.seed)
-    torch.manual_seed(args.seed)
-    torch.backends.cudnn.deterministic = args.torch_deterministic
-    if args.torch_threads > 0:
-        torch.set_num_threads(args.torch_threads)
-    device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
+    # An explicit --total-timesteps on --resume sets a new budget: higher to train on, or at
+    # most the steps done to go straight to evaluation and demo recording.
+    run = start_run(args, "rapl_a2c.py", CHECKPOINT_KEYS, lower_budget=True)
+    args, device, writer = run.args, run.device, run.writer
 
     # Routines: mined from the demo (or loaded), printed with action names, saved with the run.
-    if checkpoint is not None and checkpoint["library"]:
-        library = RoutineLibrary.from_dict(json.loads(checkpoint["library"]))
-    else:
-        library = load_routines(args)
+    demo, library = None, None
+    if run.checkpoint is not None and run.checkpoint["library"]:
+        library = RoutineLibrary.from_dict(json.loads(run.checkpoint["library"]))
+    elif args.mode != "a2c":
+        if args.routine_library is None:
+            demo, args.demo = load_demo(args.env_id, args.demo, purpose=f"--mode {args.mode}")
+        library = load_routines(
+            args.env_id, args.num_routines, demo=demo, library_path=args.routine_library,
+            proposer=args.proposer, length_weight=args.length_weight, alpha=args.alpha,
+            seed=args.seed, source={"path": args.demo}, env_kwargs=train_env_kwargs(args),
+            required=f"--mode {args.mode}",
+        )
     if library is not None:
         probe = make_primitive_env(args.env_id, **train_env_kwargs(args))
         meanings = getattr(probe.unwrapped, "get_action_meanings", lambda: None)()
         probe.close()
         print(library.describe(meanings))
-        library.save(os.path.join(run_path, "routines.json"))
+        library.save(os.path.join(run.path, "routines.json"))
 
     # Env setup: same-step autoreset, so the step that ends an episode returns the reset obs.
     thunks = [
         make_env(args.env_id, args.seed, i, routines=library, training=True,
                  record_observations=args.mode == "rapl", env_kwargs=train_env_kwargs(args),
-                 capture_video=args.capture_video, run_name=run_name)
+                 capture_video=args.capture_video, run_name=run.name)
         for i in range(args.num_envs)
     ]
     vector_cls = gym.vector.AsyncVectorEnv if args.async_envs else gym.vector.SyncVectorEnv
@@ -378,14 +264,21 @@ def main(args: Args) -> None:
     final_values = np.zeros((n, e), dtype=np.float64)
     inner_obs = np.zeros((n, max(max_len - 1, 1), e, *obs_shape), dtype=obs_dtype)
 
-    global_step, start_iteration = 0, 1
-    if checkpoint is not None:
-        agent.load_state_dict(checkpoint["model"])
-        optimizer.load_state_dict(checkpoint["optimizer"])
-        global_step, start_iteration = checkpoint["global_step"], checkpoint["iteration"] + 1
-        set_rng_state(checkpoint["rng"])
-        print(f"resumed {run_name} at step {global_step}")
-    checkpoint_path = os.path.join(run_path, "checkpoint.pt")
+    global_step, iteration = 0, 0
+    if run.checkpoint is not None:
+        agent.load_state_dict(run.checkpoint["model"])
+        optimizer.load_state_dict(run.checkpoint["optimizer"])
+        global_step, iteration = run.checkpoint["global_step"], run.checkpoint["iteration"]
+        run.restore_rng()
+        print(f"resumed {run.name} at step {global_step}")
+
+    def save_checkpoint() -> None:
+        run.save_checkpoint({
+            "model": agent.state_dict(), "optimizer": optimizer.state_dict(),
+            "global_step": global_step, "iteration": iteration,
+            "library": json.dumps(library.to_dict()) if library is not None else "",
+        })
+
     next_checkpoint = (global_step // args.checkpoint_every + 1) * args.checkpoint_every \
         if args.checkpoint_every > 0 else None
 
@@ -396,7 +289,6 @@ def main(args: Args) -> None:
     decisions, next_log = 0, (global_step // args.log_every + 1) * args.log_every
     routine_counts = np.zeros(num_actions, dtype=np.int64)
     recent_returns: list[float] = []
-    iteration = start_iteration - 1
 
     while global_step < args.total_timesteps:
         iteration += 1
@@ -507,34 +399,31 @@ def main(args: Args) -> None:
                   f"return(last 20) {mean_ret:>8s}  episodes {len(recent_returns):>5d}  "
                   f"routine use {usage:5.1%}", flush=True)
         if next_checkpoint is not None and global_step >= next_checkpoint:
-            save_checkpoint(checkpoint_path, agent, optimizer, global_step, iteration, args,
-                            library)
+            save_checkpoint()
             next_checkpoint = (global_step // args.checkpoint_every + 1) * args.checkpoint_every
 
     envs.close()
     if args.checkpoint_every > 0:
-        save_checkpoint(checkpoint_path, agent, optimizer, global_step, iteration, args, library)
+        save_checkpoint()
     if args.save_model:
-        model_path = os.path.join(run_path, "model.pt")
-        torch.save(agent.state_dict(), model_path + ".tmp")
-        os.replace(model_path + ".tmp", model_path)
-        print(f"model saved to {model_path}")
+        run.save_model(agent)
+
+    def policy(obs):
+        with torch.no_grad():
+            action, _, _, _ = agent.get_action_and_value(
+                torch.as_tensor(np.asarray(obs)[None], device=device))
+        return int(action[0])
 
     if args.eval_episodes > 0:
-        summary = evaluate(agent, args, library, device, args.eval_episodes)
-        summary["global_step"] = global_step
-        atomic_write_text(os.path.join(run_path, "eval.json"), json.dumps(summary, indent=2))
-        writer.add_scalar("eval/mean_return", summary["mean_return"], global_step)
-        print(f"eval over {args.eval_episodes} episodes: mean return "
-              f"{summary['mean_return']:.1f} ± {summary['std_return']:.1f}")
+        # Full games on the evaluation view (Procgen: unseen levels); aligned with the demo the
+        # routines came from, when there is one.
+        summary = evaluate_policy(args.env_id, policy, args.eval_episodes,
+                                  seed=args.seed + 10_000, demo=demo, routines=library,
+                                  env_kwargs=eval_env_kwargs(args))
+        summary.update(method=args.mode, global_step=global_step)
+        save_evaluation(summary, run.path, writer, global_step)
 
     if args.record_demo:
-        def policy(obs):
-            with torch.no_grad():
-                action, _, _, _ = agent.get_action_and_value(
-                    torch.as_tensor(np.asarray(obs)[None], device=device))
-            return int(action[0])
-
         def wrap(env):
             return preprocess(gym.wrappers.RecordEpisodeStatistics(env), args.env_id,
                               training=False)
@@ -546,7 +435,7 @@ def main(args: Args) -> None:
             env_kwargs={**default_env_kwargs(args.env_id), **train_env_kwargs(args)},
             wrap_env=wrap, routines=library,
             meta={"trained_steps": global_step, "command": " ".join(sys.argv),
-                  "mode": args.mode, "run": run_name},
+                  "mode": args.mode, "run": run.name},
         )
         demo.save(args.record_demo, include_observations=False)
         print(f"demo saved to {args.record_demo}: score {demo.score:g}, {len(demo)} steps")
@@ -556,4 +445,4 @@ def main(args: Args) -> None:
 if __name__ == "__main__":
     warnings.filterwarnings("ignore", category=DeprecationWarning)
     routine_gym.register_envs()
-    main(tyro.cli(Args))
+    main(parse_args(Args, renamed={"--routines": "--routine-library"}))

@@ -31,7 +31,7 @@ most; at α = 0.1 the policy is near-greedy (`bench/results/imitation.md` has bo
 
 The agent's replay memory (`routine_gym.imitation.FrameReplayMemory`) stores each Atari frame
 once and rebuilds the 4-frame stacks by index. Logged steps (`global_step`, `charts/SPS`) count
-primitive env steps. After training the policy is evaluated by `evaluate_imitation`: score and
+primitive env steps. After training the policy is evaluated by `evaluate_policy`: score and
 alignment of its primitive actions with the demo's, in `eval.json`.
 """
 
@@ -39,38 +39,27 @@ from __future__ import annotations
 
 import json
 import os
-import random
 import time
 import warnings
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Literal
 
 import gymnasium as gym
 import numpy as np
 import torch
 import torch.nn as nn
-import tyro
 from torch.distributions.categorical import Categorical
-from torch.utils.tensorboard import SummaryWriter
 
 import routine_gym
-from routine_gym.checkpoint import resume_settings, write_checkpoint
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_env
-from routine_gym.imitation import (
-    FrameReplayMemory,
-    agent_view_states,
-    build_demo_transitions,
-    check_demo_env,
-    evaluate_imitation,
-    load_demo,
-    load_routine_library,
-    save_evaluation,
-    sqil_target,
-)
+from routine_gym.evaluation import evaluate_policy, save_evaluation
+from routine_gym.imitation import agent_view_states, build_demo_transitions, sqil_target
 from routine_gym.library import RoutineLibrary
+from routine_gym.loading import check_demo_env, load_demo, load_routines
 from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.rng import rng_state, set_rng_state
+from routine_gym.replay_memory import FrameReplayMemory
+from routine_gym.run import parse_args, start_run
 
 
 @dataclass
@@ -115,7 +104,7 @@ class Args:
     # Routines
     num_routines: int = 3
     """K, the number of routines (0: plain SQIL on the primitive actions)"""
-    routines: str | None = None
+    routine_library: str | None = None
     """a routine library JSON to use (its best K) instead of mining the demo"""
     length_weight: float = 0.1
     """λ_length in the routine score f + λ·len"""
@@ -160,87 +149,25 @@ CHECKPOINT_KEYS = ("model", "target", "optimizer", "global_step", "updates", "rn
                    "library")
 
 
-def save_checkpoint(path: str, q_network: QNetwork, target_network: QNetwork, optimizer,
-                    global_step: int, updates: int, args: Args,
-                    library: RoutineLibrary | None, rng: np.random.Generator) -> None:
-    """Write a resumable checkpoint atomically (a kill mid-write keeps the previous one)."""
-    write_checkpoint(
-        {
-            "model": q_network.state_dict(),
-            "target": target_network.state_dict(),
-            "optimizer": optimizer.state_dict(),
-            "global_step": global_step,
-            "updates": updates,
-            "rng": rng_state(rng),
-            "args": json.dumps(asdict(args)),
-            "library": json.dumps(library.to_dict()) if library is not None else "",
-        },
-        path,
-    )
-
-
-def check_args(args: Args) -> None:
-    """Reject settings the algorithm cannot run with, naming the value."""
-    checks = [
-        ("temperature", args.temperature > 0, "> 0"),
-        ("gamma", 0 < args.gamma <= 1, "in (0, 1]"),
-        ("tau", 0 < args.tau <= 1, "in (0, 1]"),
-        ("batch_size", args.batch_size >= 2, "≥ 2 (half demo, half agent)"),
-        ("buffer_size", args.buffer_size >= 8, "≥ 8"),
-        ("train_frequency", args.train_frequency >= 1, "≥ 1"),
-        ("target_network_frequency", args.target_network_frequency >= 1, "≥ 1"),
-        ("lambda_sample", args.lambda_sample >= 0, "≥ 0"),
-        ("learning_starts", args.learning_starts >= 0, "≥ 0"),
-        ("num_routines", args.num_routines >= 0, "≥ 0"),
-        ("eval_episodes", args.eval_episodes >= 0, "≥ 0"),
-    ]
-    for name, ok, expected in checks:
-        if not ok:
-            raise ValueError(f"--{name.replace('_', '-')} needs to be {expected}, "
-                             f"actual value: {getattr(args, name)}")
-
-
 def main(args: Args) -> dict | None:
-    check_args(args)
-    if args.resume:
-        # The saved settings; an explicit --total-timesteps may raise the budget.
-        args, checkpoint, run_path = resume_settings(args, CHECKPOINT_KEYS, "rapl_sqil.py")
-        run_name = os.path.basename(run_path)
-    else:
-        checkpoint = None
-        env_name = args.env_id.replace("/", "-")
-        run_name = f"{env_name}__{args.exp_name}__{args.seed}__{int(time.time())}"
-        run_path = os.path.join(args.run_dir, run_name)
-    os.makedirs(run_path, exist_ok=True)
-    writer = SummaryWriter(run_path)
-    writer.add_text(
-        "hyperparameters",
-        "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in vars(args).items()),
-    )
-
-    random.seed(args.seed)
-    np.random.seed(args.seed)
-    torch.manual_seed(args.seed)
-    rng = np.random.default_rng(args.seed)
-    torch.backends.cudnn.deterministic = args.torch_deterministic
-    if args.torch_threads > 0:
-        torch.set_num_threads(args.torch_threads)
-    device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
+    run = start_run(args, "rapl_sqil.py", CHECKPOINT_KEYS, extra_checks=[
+        ("batch_size", args.batch_size >= 2, "≥ 2 (half demo, half agent)")])
+    args, device, rng, writer = run.args, run.device, run.rng, run.writer
 
     # The demo, its routines, and the demo buffer D_prim ∪ D_routine in the agent's view.
     demo, args.demo = load_demo(args.env_id, args.demo)
     num_primitives = check_demo_env(demo, args.env_id)
-    if checkpoint is not None and checkpoint["library"]:
-        library = RoutineLibrary.from_dict(json.loads(checkpoint["library"]))
+    if run.checkpoint is not None and run.checkpoint["library"]:
+        library = RoutineLibrary.from_dict(json.loads(run.checkpoint["library"]))
     else:
-        library = load_routine_library(
-            demo, args.env_id, args.num_routines, routines_path=args.routines,
+        library = load_routines(
+            args.env_id, args.num_routines, demo=demo, library_path=args.routine_library,
             proposer=args.proposer, length_weight=args.length_weight, alpha=args.alpha,
             seed=args.seed, source={"path": args.demo},
         )
     if library is not None:
         print(library.describe(demo.action_meanings))
-        library.save(os.path.join(run_path, "routines.json"))
+        library.save(os.path.join(run.path, "routines.json"))
     demo_buffer = build_demo_transitions(
         demo, agent_view_states(demo, args.env_id), args.gamma, library, num_primitives
     )
@@ -267,14 +194,21 @@ def main(args: Args) -> dict | None:
     half = args.batch_size // 2
 
     global_step, updates = 0, 0
-    if checkpoint is not None:
-        q_network.load_state_dict(checkpoint["model"])
-        target_network.load_state_dict(checkpoint["target"])
-        optimizer.load_state_dict(checkpoint["optimizer"])
-        global_step, updates = checkpoint["global_step"], checkpoint["updates"]
-        set_rng_state(checkpoint["rng"], rng)
-        print(f"resumed {run_name} at step {global_step}")
-    checkpoint_path = os.path.join(run_path, "checkpoint.pt")
+    if run.checkpoint is not None:
+        q_network.load_state_dict(run.checkpoint["model"])
+        target_network.load_state_dict(run.checkpoint["target"])
+        optimizer.load_state_dict(run.checkpoint["optimizer"])
+        global_step, updates = run.checkpoint["global_step"], run.checkpoint["updates"]
+        run.restore_rng()
+        print(f"resumed {run.name} at step {global_step}")
+
+    def save_checkpoint() -> None:
+        run.save_checkpoint({
+            "model": q_network.state_dict(), "target": target_network.state_dict(),
+            "optimizer": optimizer.state_dict(), "global_step": global_step, "updates": updates,
+            "library": json.dumps(library.to_dict()) if library is not None else "",
+        })
+
     next_checkpoint = (global_step // args.checkpoint_every + 1) * args.checkpoint_every \
         if args.checkpoint_every > 0 else None
     learning_starts = global_step + args.learning_starts  # a resumed run refills its memory first
@@ -368,19 +302,14 @@ def main(args: Args) -> dict | None:
                   f"return(last 20) {mean_ret:>8s}  episodes {len(recent_returns):>5d}  "
                   f"updates {updates:>7d}  routine use {usage:5.1%}", flush=True)
         if next_checkpoint is not None and global_step >= next_checkpoint:
-            save_checkpoint(checkpoint_path, q_network, target_network, optimizer, global_step,
-                            updates, args, library, rng)
+            save_checkpoint()
             next_checkpoint = (global_step // args.checkpoint_every + 1) * args.checkpoint_every
 
     env.close()
     if args.checkpoint_every > 0:
-        save_checkpoint(checkpoint_path, q_network, target_network, optimizer, global_step,
-                        updates, args, library, rng)
+        save_checkpoint()
     if args.save_model:
-        model_path = os.path.join(run_path, "model.pt")
-        torch.save(q_network.state_dict(), model_path + ".tmp")
-        os.replace(model_path + ".tmp", model_path)
-        print(f"model saved to {model_path}")
+        run.save_model(q_network)
 
     summary = None
     if args.eval_episodes > 0:
@@ -391,12 +320,11 @@ def main(args: Args) -> dict | None:
                 return int(q.argmax())
             return int(Categorical(logits=q / args.temperature).sample())
 
-        summary = evaluate_imitation(args.env_id, policy, demo, args.eval_episodes,
-                                     seed=args.seed + 10_000, routines=library,
-                                     max_steps=args.eval_max_steps)
+        summary = evaluate_policy(args.env_id, policy, args.eval_episodes, seed=args.seed + 10_000,
+                                  demo=demo, routines=library, max_steps=args.eval_max_steps)
         summary.update(method="rapl-sqil" if library is not None else "sqil",
                        global_step=global_step, num_routines=len(library or ()))
-        save_evaluation(summary, run_path, writer, global_step)
+        save_evaluation(summary, run.path, writer, global_step)
     writer.close()
     return summary
 
@@ -404,4 +332,4 @@ def main(args: Args) -> dict | None:
 if __name__ == "__main__":
     warnings.filterwarnings("ignore", category=DeprecationWarning)
     routine_gym.register_envs()
-    main(tyro.cli(Args))
+    main(parse_args(Args, renamed={"--routines": "--routine-library"}))

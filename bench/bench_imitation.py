@@ -2,7 +2,7 @@
 
 For every env, method and seed this runs the method's script in its own subprocess,
 
-    BC         python algos/bc.py        --total-timesteps BC_STEPS   (gradient steps)
+    BC         python algos/bc.py        --gradient-steps BC_STEPS
     GAIL       python algos/gail.py      --total-timesteps GAIL_STEPS
     SQIL       python algos/rapl_sqil.py --total-timesteps SQIL_STEPS --num-routines 0
     RAPL-SQIL  python algos/rapl_sqil.py --total-timesteps SQIL_STEPS --num-routines 3
@@ -76,7 +76,8 @@ def run_one(env_id: str, label: str, method: str, temperature: float, seed: int,
     steps = budget[{"bc": "bc_steps", "gail": "gail_steps"}.get(script, "sqil_steps")]
     run_dir = root / env_id.replace("/", "-") / label.replace(" ", "_") / f"seed{seed}"
     cmd = [sys.executable, str(REPO / "algos" / f"{script}.py"), "--env-id", env_id,
-           "--seed", str(seed), "--total-timesteps", str(steps),
+           "--seed", str(seed), "--gradient-steps" if script == "bc" else "--total-timesteps",
+           str(steps),
            "--eval-episodes", str(budget["eval_episodes"]), "--run-dir", str(run_dir), *extra]
     if budget.get("eval_max_steps"):
         cmd += ["--eval-max-steps", str(budget["eval_max_steps"])]

@@ -8,6 +8,7 @@ folder holding one and turns every way of getting it wrong into an error that na
 
 from __future__ import annotations
 
+import io
 import json
 import os
 from collections.abc import Iterable
@@ -15,6 +16,8 @@ from dataclasses import fields
 from typing import Any
 
 import torch
+
+from routine_gym.atomic import atomic_write_bytes
 
 __all__ = ["CHECKPOINT_NAME", "load_checkpoint", "resume_settings", "write_checkpoint"]
 
@@ -24,9 +27,9 @@ CHECKPOINT_NAME = "checkpoint.pt"
 
 def write_checkpoint(state: dict[str, Any], path: str | os.PathLike) -> None:
     """`torch.save(state, path)` atomically: a kill mid-write keeps the previous checkpoint."""
-    tmp = f"{os.fspath(path)}.tmp"
-    torch.save(state, tmp)
-    os.replace(tmp, path)
+    buffer = io.BytesIO()
+    torch.save(state, buffer)
+    atomic_write_bytes(path, buffer.getvalue())
 
 
 def load_checkpoint(resume: str | os.PathLike, keys: Iterable[str],
@@ -52,20 +55,21 @@ def load_checkpoint(resume: str | os.PathLike, keys: Iterable[str],
 
 
 def resume_settings(args: Any, keys: Iterable[str], script: str, *,
-                    lower_budget: bool = False) -> tuple[Any, dict[str, Any], str]:
+                    lower_budget: bool = False,
+                    budget: str = "total_timesteps") -> tuple[Any, dict[str, Any], str]:
     """For `--resume`: the run's saved `Args`, its checkpoint and its run folder.
 
-    The run continues as it was configured; a `--total-timesteps` other than the default sets
-    a new budget. By default the budget may only be raised (a lower one finishes the run as it
-    was set up); with `lower_budget=True` a lower one is taken as it is, so a script can go
-    straight to evaluation. A bare `--resume` keeps the saved budget. The run folder is the
-    checkpoint's own, wherever the script is run from.
+    The run continues as it was configured; a budget (`--total-timesteps`, or the field named
+    by `budget`) other than the default sets a new one. By default the budget may only be
+    raised (a lower one finishes the run as it was set up); with `lower_budget=True` a lower
+    one is taken as it is, so a script can go straight to evaluation. A bare `--resume` keeps
+    the saved budget. The run folder is the checkpoint's own, wherever the script is run from.
     """
     path, checkpoint = load_checkpoint(args.resume, keys, script)
     saved = type(args)(**json.loads(checkpoint["args"]))
-    default = next(f.default for f in fields(args) if f.name == "total_timesteps")
-    if args.total_timesteps != default:
-        saved.total_timesteps = args.total_timesteps if lower_budget \
-            else max(saved.total_timesteps, args.total_timesteps)
+    default = next(f.default for f in fields(args) if f.name == budget)
+    given, before = getattr(args, budget), getattr(saved, budget)
+    if given != default:
+        setattr(saved, budget, given if lower_budget else max(before, given))
     saved.resume = path
     return saved, checkpoint, os.path.dirname(os.path.abspath(path))

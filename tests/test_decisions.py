@@ -27,7 +27,8 @@ from routine_gym.demo import (
 )
 from routine_gym.envs.atari import FireOnLifeLoss, FireReset, NoopReset
 from routine_gym.envs.factory import default_env_kwargs, preprocess
-from routine_gym.imitation import build_demo_transitions, decision_steps, evaluate_imitation
+from routine_gym.evaluation import evaluate_policy
+from routine_gym.imitation import build_demo_transitions, decision_steps
 from routine_gym.library import RoutineLibrary
 from routine_gym.metrics import alignment_score
 from routine_gym.mining import SequiturMiner
@@ -196,7 +197,7 @@ def test_the_alignment_compares_decisions_only():
     from routine_gym.demo import shipped_demo_path
 
     demo = Demo.load(shipped_demo_path(QBERT))
-    summary = evaluate_imitation(QBERT, lambda obs: 2, demo, episodes=1, seed=7, max_steps=120)
+    summary = evaluate_policy(QBERT, lambda obs: 2, episodes=1, seed=7, demo=demo, max_steps=120)
     reference = demo.decision_actions()[0]
     assert summary["demo_length"] == demo.num_decisions == len(reference) == 789
     (decided,) = summary["decisions"]

@@ -74,7 +74,8 @@ def test_every_script_trains_from_a_demo_recorded_with_a_module_id(script, tmp_p
     assert Demo.load(demo_path).env_id == "MiniQbert-v0"
     run = subprocess.run(
         [sys.executable, str(repo_root / "algos" / f"{script}.py"), "--env-id", MODULE_ID,
-         "--demo", str(demo_path), "--total-timesteps", "200", "--eval-episodes", "1",
+         "--demo", str(demo_path), "--gradient-steps" if script == "bc" else "--total-timesteps",
+         "200", "--eval-episodes", "1",
          "--run-dir", str(tmp_path / "runs")],
         capture_output=True, text=True, timeout=300, cwd=tmp_path,
     )

@@ -14,6 +14,7 @@ import torch
 from script_loader import load_script
 
 import routine_gym  # noqa: F401  (registers MiniQbert-v0)
+from routine_gym.run import Run
 
 SCRIPTS = {name: load_script(name, f"algos_{name}_resume") for name in ("bc", "gail")}
 # Tiny budgets on MiniQbert; GAIL's iterations are 2 envs × 16 steps = 32 primitive steps.
@@ -40,15 +41,14 @@ def run(script: str, **kwargs) -> None:
 
 def run_killed_at_first_checkpoint(script: str, monkeypatch, **kwargs) -> Path:
     """Run a script until it has written its first checkpoint; return the run folder."""
-    module = SCRIPTS[script]
-    save = module.save_checkpoint
+    save = Run.save_checkpoint
 
-    def save_and_die(path, *rest):
-        save(path, *rest)
+    def save_and_die(run_, state):
+        save(run_, state)
         raise Killed
 
     with monkeypatch.context() as m:
-        m.setattr(module, "save_checkpoint", save_and_die)
+        m.setattr(Run, "save_checkpoint", save_and_die)
         with pytest.raises(Killed):
             run(script, **kwargs)
     (folder,) = Path(kwargs["run_dir"]).iterdir()
@@ -84,34 +84,34 @@ def assert_same(a, b) -> None:
 def test_bc_resumed_after_a_kill_trains_exactly_as_an_uninterrupted_run(tmp_path, monkeypatch,
                                                                          capsys):
     # The uninterrupted run: 60 gradient steps, its checkpoints at steps 20, 40, 60 kept aside.
-    module, saves = SCRIPTS["bc"], {}
-    save = module.save_checkpoint
+    saves = {}
+    save = Run.save_checkpoint
 
-    def save_and_keep(path, *rest):
-        save(path, *rest)
-        checkpoint = torch.load(path, weights_only=True)
+    def save_and_keep(run_, state):
+        save(run_, state)
+        checkpoint = torch.load(run_.checkpoint_path, weights_only=True)
         saves[checkpoint["step"]] = checkpoint
 
     with monkeypatch.context() as m:
-        m.setattr(module, "save_checkpoint", save_and_keep)
-        run("bc", total_timesteps=60, run_dir=str(tmp_path / "whole"))
+        m.setattr(Run, "save_checkpoint", save_and_keep)
+        run("bc", gradient_steps=60, run_dir=str(tmp_path / "whole"))
     (whole,) = (tmp_path / "whole").iterdir()
     assert sorted(saves) == [20, 40, 60]
 
     # A 40-step run killed after its checkpoint at step 20, resumed as configured.
-    folder = run_killed_at_first_checkpoint("bc", monkeypatch, total_timesteps=40,
+    folder = run_killed_at_first_checkpoint("bc", monkeypatch, gradient_steps=40,
                                             run_dir=str(tmp_path / "killed"))
     assert load(folder)["step"] == 20
     run("bc", resume=str(folder))
     assert f"resumed {folder.name} at step 20" in capsys.readouterr().out
     resumed = load(folder)
-    assert resumed["step"] == 40 and json.loads(resumed["args"])["total_timesteps"] == 40
+    assert resumed["step"] == 40 and json.loads(resumed["args"])["gradient_steps"] == 40
     # Same batches (the generators continued) and the same Adam moments: bit-identical.
     for key in ("model", "optimizer", "rng"):
         assert_same(resumed[key], saves[40][key])
 
     # The finished run trains on when its budget is raised, and still matches.
-    run("bc", resume=str(folder / "checkpoint.pt"), total_timesteps=60)
+    run("bc", resume=str(folder / "checkpoint.pt"), gradient_steps=60)
     assert f"resumed {folder.name} at step 40" in capsys.readouterr().out
     raised = load(folder)
     assert raised["step"] == 60

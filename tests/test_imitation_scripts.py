@@ -15,15 +15,16 @@ from script_loader import load_script
 import routine_gym  # noqa: F401  (registers MiniQbert-v0 and procgen/CoinRun-v0)
 from routine_gym.demo import Demo, record_agent_demo, shipped_demo_path
 from routine_gym.envs.factory import default_env_kwargs, preprocess
-from routine_gym.imitation import check_demo_env, evaluate_imitation, load_routine_library
+from routine_gym.evaluation import evaluate_policy
 from routine_gym.library import RoutineLibrary
+from routine_gym.loading import check_demo_env, load_routines
 
 SQIL, BC, GAIL = (load_script(n) for n in ("rapl_sqil", "bc", "gail"))
 
 # Tiny budgets: each smoke run is about a second on MiniQbert and CartPole.
 TINY = {
     "rapl_sqil": dict(total_timesteps=300, learning_starts=100, batch_size=8, log_every=1000),
-    "bc": dict(total_timesteps=20, batch_size=8, log_every=1000),
+    "bc": dict(gradient_steps=20, batch_size=8, log_every=1000),
     "gail": dict(total_timesteps=64, num_envs=2, num_steps=16, num_minibatches=2,
                  disc_minibatches=2, log_every=1000),
 }
@@ -119,14 +120,14 @@ def test_evaluation_aligns_the_primitive_actions_a_routine_executed():
                              max_steps=8, progress=False)
     assert demo.actions.tolist() == [5, 2, 5, 2, 3, 3, 0, 0]
     # Always routine 0 = DOWN UP: the primitive trajectory is [5 2 5 2 5 2 5 2], 4 substitutions.
-    summary = evaluate_imitation("MiniQbert-v0", lambda obs: 6, demo, episodes=2, seed=0,
-                                 routines=[(5, 2)], max_steps=8)
+    summary = evaluate_policy("MiniQbert-v0", lambda obs: 6, episodes=2, seed=0, demo=demo,
+                              routines=[(5, 2)], max_steps=8)
     assert summary["alignments"] == [0.5, 0.5]
     assert summary["lengths"] == [8, 8]
     # The demo itself, replayed as a policy, aligns perfectly.
     replayed = iter([5, 2, 5, 2, 3, 3, 0, 0])
-    summary = evaluate_imitation("MiniQbert-v0", lambda obs: next(replayed), demo, episodes=1,
-                                 seed=0, max_steps=8)
+    summary = evaluate_policy("MiniQbert-v0", lambda obs: next(replayed), episodes=1, seed=0,
+                              demo=demo, max_steps=8)
     assert summary["alignments"] == [1.0] and summary["returns"] == [float(demo.score)]
 
 
@@ -176,29 +177,30 @@ def test_a_routine_library_of_another_env_is_rejected(tmp_path):
     other = RoutineLibrary(routines=((0, 1, 0),), source={"env_id": "CartPole-v1"})
     other.save(tmp_path / "cartpole.json")
     with pytest.raises(ValueError, match="mined from a demo of CartPole-v1, not MiniQbert-v0"):
-        run("rapl_sqil", tmp_path, env_id="MiniQbert-v0", routines=str(tmp_path / "cartpole.json"))
+        run("rapl_sqil", tmp_path, env_id="MiniQbert-v0",
+            routine_library=str(tmp_path / "cartpole.json"))
     unnamed = RoutineLibrary(routines=((5, 9),))  # no env id, but action 9 is not MiniQbert's
     unnamed.save(tmp_path / "unnamed.json")
     demo = Demo.load(shipped_demo_path("MiniQbert-v0"))
     with pytest.raises(ValueError, match=r"outside MiniQbert-v0's Discrete\(6\)"):
-        load_routine_library(demo, "MiniQbert-v0", 3, routines_path=str(tmp_path / "unnamed.json"))
+        load_routines("MiniQbert-v0", 3, demo=demo, library_path=str(tmp_path / "unnamed.json"))
 
 
 def test_more_routines_than_the_library_holds_warns_and_uses_all_of_them(tmp_path):
     demo = Demo.load(shipped_demo_path("MiniQbert-v0"))
     with pytest.warns(UserWarning, match="yields 2 routine.*fewer than --num-routines 5"):
-        library = load_routine_library(demo, "MiniQbert-v0", 5)
+        library = load_routines("MiniQbert-v0", 5, demo=demo)
     assert len(library) == 2
     path = str(tmp_path / "lib.json")
     library.save(path)
     with pytest.warns(UserWarning, match="holds 2 routine.*fewer than the 4 asked for"):
-        loaded = load_routine_library(demo, "MiniQbert-v0", 4, routines_path=path)
+        loaded = load_routines("MiniQbert-v0", 4, demo=demo, library_path=path)
     assert loaded.routines == library.routines
-    best = load_routine_library(demo, "MiniQbert-v0", 1, routines_path=path)
+    best = load_routines("MiniQbert-v0", 1, demo=demo, library_path=path)
     assert best.routines == library.routines[:1]
-    assert load_routine_library(demo, "MiniQbert-v0", 0) is None
+    assert load_routines("MiniQbert-v0", 0, demo=demo) is None
     with pytest.raises(ValueError, match="num_routines needs to be ≥ 0"):
-        load_routine_library(demo, "MiniQbert-v0", -1)
+        load_routines("MiniQbert-v0", -1, demo=demo)
 
 
 # -- Atari and CoinRun ------------------------------------------------------------------------

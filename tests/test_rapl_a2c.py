@@ -23,6 +23,7 @@ import routine_gym  # noqa: F401  (registers MiniQbert, CoinRun and the ALE envs
 from routine_gym.demo import DEMO_SUITE, Demo, record_agent_demo, replay, shipped_demo_path
 from routine_gym.envs.factory import default_env_kwargs
 from routine_gym.library import RoutineLibrary
+from routine_gym.loading import load_routines
 
 pytestmark = pytest.mark.filterwarnings(
     "ignore:only .* routine\\(s\\) survive:UserWarning",  # MiniQbert's demo gives 2 of 3
@@ -96,7 +97,7 @@ def check_run_folder(folder: Path, mode: str, eval_episodes: int) -> RoutineLibr
         assert 1 <= len(library) <= 3
     if eval_episodes:
         summary = json.loads((folder / "eval.json").read_text())
-        assert summary["mode"] == mode
+        assert summary["method"] == mode
         assert summary["episodes"] == eval_episodes
         assert len(summary["returns"]) == len(summary["lengths"]) == eval_episodes
         assert summary["mean_return"] == pytest.approx(np.mean(summary["returns"]))
@@ -256,17 +257,16 @@ def test_a_demo_that_yields_no_routine_is_a_clear_error(rapl_a2c, tmp_path):
 
 
 def test_a_library_mined_for_another_env_is_refused(rapl_a2c, tmp_path, repo_root):
-    library = rapl_a2c.load_routines(rapl_a2c.Args(env_id="MiniQbert-v0", mode="rapl"))
+    demo = Demo.load(repo_root / "demos" / "MiniQbert-v0.npz")
+    library = load_routines("MiniQbert-v0", 3, demo=demo)
     library.save(tmp_path / "lib.json")
     assert library.source["env_id"] == "MiniQbert-v0"
     with pytest.raises(ValueError, match="MiniQbert-v0, not CartPole-v1"):
-        rapl_a2c.load_routines(rapl_a2c.Args(env_id="CartPole-v1", mode="rapl",
-                                             routines=str(tmp_path / "lib.json")))
-    # The same library is used as is for its own env (no mining).
-    again = rapl_a2c.load_routines(rapl_a2c.Args(env_id="MiniQbert-v0", mode="macro",
-                                                 routines=str(tmp_path / "lib.json")))
+        run(rapl_a2c, tmp_path / "runs", env_id="CartPole-v1", mode="rapl",
+            routine_library=str(tmp_path / "lib.json"))
+    # The same library is used as is for its own env (no mining, no demo needed).
+    again = load_routines("MiniQbert-v0", 3, library_path=str(tmp_path / "lib.json"))
     assert again.routines == library.routines
-
 
 
 # -- checkpoints ---------------------------------------------------------------------------

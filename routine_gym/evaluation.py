@@ -1,0 +1,133 @@
+"""The one evaluation of every training script, and its `eval.json`.
+
+`evaluate_policy` runs a trained policy for full episodes on the env's evaluation view (no
+training-only wrappers: no life-loss episodes, no reward clipping; Procgen on unseen levels
+when the caller passes them) with a `DemoRecorder` under the preprocessing and a
+`DecisionMarker` over it, so each episode's return is the game's score and its decided
+*primitive* action trajectory (a routine decision counted as its executed primitive actions,
+the steps the preprocessing injects left out) is known. Given the demo, each trajectory is
+aligned with the demo's best episode (the alignment score of SPEC §5). `save_evaluation`
+writes the summary as the run's `eval.json` and TensorBoard's `eval/*` scalars.
+
+`eval.json` (every script): `env_id`, `episodes`, `seed`, `returns`, `lengths` (primitive
+steps, injected ones included), `decisions` (decided primitive steps), `mean_return`,
+`std_return`, `env_kwargs`; with a demo `alignments`, `mean_alignment`, `std_alignment`,
+`demo_score`, `demo_length` (its best episode's decisions); `human_normalized_score` where the
+env's profile has a published table (Atari); and what the script adds (`method`,
+`global_step`, ...).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.wrappers import RecordEpisodeStatistics
+
+from routine_gym.atomic import atomic_write_text
+from routine_gym.demo import Demo, record_agent_demo
+from routine_gym.envs import profile_for
+from routine_gym.envs.factory import default_env_kwargs, preprocess
+from routine_gym.library import RoutineLibrary
+from routine_gym.metrics import alignment_score, human_normalized_score
+
+__all__ = ["evaluate_policy", "save_evaluation"]
+
+
+def evaluate_policy(
+    env_id: str,
+    policy: Callable[[np.ndarray], int],
+    episodes: int,
+    seed: int,
+    *,
+    demo: Demo | None = None,
+    routines: RoutineLibrary | Sequence[Sequence[int]] | None = None,
+    env_kwargs: dict[str, Any] | None = None,
+    max_steps: int | None = None,
+) -> dict[str, Any]:
+    """Run `policy` for `episodes` full episodes; score them and, with a demo, align them.
+
+    Args:
+        env_id: the env.
+        policy: maps an observation of the agent's view to an action of `Discrete(n + K)`.
+        episodes: episodes to run, reset with seeds `seed, seed + 1, …`.
+        seed: the first reset seed.
+        demo: the demonstration whose best episode is the reference trajectory `ι_d` of the
+            alignment score (None: no alignment).
+        routines: the routines the policy can choose (None: primitives only).
+        env_kwargs: `gym.make` keyword arguments (default: the demo's, else none), over the
+            env's defaults.
+        max_steps: cap on the primitive steps of an episode (None: the env's own limit).
+
+    Returns:
+        The JSON-able summary of the module docstring.
+    """
+    if episodes < 1:
+        raise ValueError(f"episodes needs to be ≥ 1, actual value: {episodes}")
+    if env_kwargs is None:
+        env_kwargs = demo.env_kwargs if demo is not None else {}
+    kwargs = {**default_env_kwargs(env_id), **env_kwargs}
+
+    def wrap(env: gym.Env) -> gym.Env:
+        return preprocess(RecordEpisodeStatistics(env), env_id, training=False)
+
+    played = record_agent_demo(
+        env_id, policy, num_episodes=episodes, seed=seed, env_kwargs=kwargs, keep="all",
+        max_steps=max_steps, progress=False, wrap_env=wrap, routines=routines,
+    )
+    trajectories = played.decision_actions()
+    returns = played.scores.tolist()
+    summary: dict[str, Any] = {
+        "env_id": env_id,
+        "episodes": episodes,
+        "seed": seed,
+        "returns": returns,
+        "lengths": played.episode_lengths.tolist(),
+        "decisions": [len(a) for a in trajectories],
+        "mean_return": float(np.mean(returns)),
+        "std_return": float(np.std(returns)),
+        "env_kwargs": kwargs,
+    }
+    if demo is not None:
+        # ι_d and ι_t: the demonstrator's and the agent's decided primitive actions (a routine
+        # as its executed primitives), without the steps the preprocessing injected into either.
+        reference = demo.decision_actions()[demo.best_episode]
+        alignments = [alignment_score(reference, actions) for actions in trajectories]
+        summary.update(
+            alignments=alignments,
+            mean_alignment=float(np.mean(alignments)),
+            std_alignment=float(np.std(alignments)),
+            demo_score=float(demo.scores[demo.best_episode]),
+            demo_length=len(reference),
+        )
+    score_key = profile_for(env_id).score_key(env_id)
+    if score_key is not None:
+        try:
+            summary["human_normalized_score"] = float(
+                human_normalized_score(summary["mean_return"], score_key)
+            )
+        except ValueError:
+            pass  # a game outside the published table
+    return summary
+
+
+def save_evaluation(summary: dict[str, Any], run_path: str, writer: Any, global_step: int) -> None:
+    """Write `eval.json` (atomically) and the `eval/*` TensorBoard scalars; print one line."""
+    atomic_write_text(os.path.join(run_path, "eval.json"), json.dumps(summary, indent=2) + "\n")
+    writer.add_scalar("eval/mean_return", summary["mean_return"], global_step)
+    line = (f"eval over {summary['episodes']} episodes: return {summary['mean_return']:.1f} ± "
+            f"{summary['std_return']:.1f}")
+    if "mean_alignment" in summary:
+        writer.add_scalar("eval/mean_alignment", summary["mean_alignment"], global_step)
+        writer.add_scalar("eval/std_alignment", summary["std_alignment"], global_step)
+        line += (f", alignment {summary['mean_alignment']:.3f} ± "
+                 f"{summary['std_alignment']:.3f}")
+    if "human_normalized_score" in summary:
+        writer.add_scalar("eval/human_normalized_score", summary["human_normalized_score"],
+                          global_step)
+        line += f", human-normalised {summary['human_normalized_score']:.1%}"
+    print(line, flush=True)

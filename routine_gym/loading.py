@@ -1,0 +1,207 @@
+"""The demo and the routines of a run: the one way every script in `algos/` loads them.
+
+- `load_demo(env_id, path)`: the demo given, or the one shipped in `demos/` for the env.
+- `check_demo_env(demo, env_id)`: the demo's actions are the env's primitive actions.
+- `load_routines(...)`: the K routines of a run, mined from a demo (any proposer of
+  `routine_gym.mining`) or the best K of a saved library (`--routine-library`), checked
+  against the env; fewer than K is a warning, none at all an error where routines are needed.
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import Any
+
+import gymnasium as gym
+from gymnasium import spaces
+
+from routine_gym.demo import Demo, shipped_demo_path
+from routine_gym.envs import same_env
+from routine_gym.envs.factory import make_primitive_env
+from routine_gym.library import RoutineLibrary
+from routine_gym.mining import make_proposer
+
+__all__ = ["check_demo_env", "load_demo", "load_routines"]
+
+
+def load_demo(env_id: str, path: str | None = None, purpose: str = "imitation") -> tuple[Demo, str]:
+    """The demo of a run: `path`, or the demo shipped in `demos/` for `env_id`.
+
+    Args:
+        env_id: the env the run trains on; the demo must have been recorded on it.
+        path: the demo file (`--demo`), or None for the shipped one.
+        purpose: what the demo is for, named in the error when there is none
+            (`"imitation"`, `"--mode rapl"`, ...).
+
+    Raises:
+        SystemExit: no path was given and no demo of `env_id` ships, with how to make one.
+        ValueError: the file is not a demo, or a demo of another env.
+    """
+    path = path or shipped_demo_path(env_id)
+    if path is None:
+        raise SystemExit(
+            f"{purpose} needs a demo, and no demo of {env_id} ships in demos/.\n"
+            f"Record one, then pass it with --demo:\n"
+            f"  routine-gym record {env_id} --policy random --episodes 10 --out demo.npz\n"
+            f"  python algos/rapl_a2c.py --env-id {env_id} --mode a2c --record-demo demo.npz"
+            f"   # a trained A2C expert's demo, as in the paper"
+        )
+    return Demo.load(path, env_id=env_id), path
+
+
+def _env_action_meanings(env: gym.Env) -> list[str] | None:
+    getter = getattr(env.unwrapped, "get_action_meanings", None)
+    return [str(m) for m in getter()] if callable(getter) else None
+
+
+def check_demo_env(demo: Demo, env_id: str, env_kwargs: dict[str, Any] | None = None) -> int:
+    """Check that `demo` was recorded on the primitive env of `env_id`; its number of actions.
+
+    The demo's actions must be the env's primitive actions: the same `Discrete(n)` and, when
+    both name their actions, the same action meanings (a full-action-set Qbert demo does not fit
+    the minimal-action-set env, though both are `ALE/Qbert-v5`).
+
+    Raises:
+        ValueError: naming the demo's and the env's action spaces or meanings.
+    """
+    if not same_env(demo.env_id, env_id):
+        raise ValueError(f"the demo was recorded on {demo.env_id}, not {env_id}")
+    env = make_primitive_env(env_id, **(env_kwargs if env_kwargs is not None else demo.env_kwargs))
+    try:
+        space = env.action_space
+        meanings = _env_action_meanings(env)
+    finally:
+        env.close()
+    if not isinstance(space, spaces.Discrete):
+        raise ValueError(f"imitation needs a Discrete action space; {env_id} has {space}")
+    n = int(space.n)
+    if demo.num_actions != n:
+        raise ValueError(
+            f"the demo's action space Discrete({demo.num_actions}) does not match {env_id}'s "
+            f"Discrete({n}): record the demo on the same env (same action set)"
+        )
+    demo_meanings = list(demo.action_meanings)
+    numeric = [str(a) for a in range(n)]
+    if meanings is not None and demo_meanings != numeric and demo_meanings != meanings:
+        raise ValueError(
+            f"the demo's actions {demo_meanings} are not {env_id}'s actions {meanings}"
+        )
+    return n
+
+
+def _env_actions(env_id: str, env_kwargs: dict[str, Any] | None) -> tuple[int, list[str] | None]:
+    env = make_primitive_env(env_id, **(env_kwargs or {}))
+    try:
+        space = env.action_space
+        if not isinstance(space, spaces.Discrete):
+            raise ValueError(f"routines need a Discrete action space; {env_id} has {space}")
+        return int(space.n), _env_action_meanings(env)
+    finally:
+        env.close()
+
+
+def load_routines(
+    env_id: str,
+    num_routines: int,
+    *,
+    demo: Demo | None = None,
+    library_path: str | None = None,
+    proposer: str = "full",
+    length_weight: float = 0.1,
+    alpha: int = 2,
+    seed: int = 0,
+    source: dict[str, Any] | None = None,
+    env_kwargs: dict[str, Any] | None = None,
+    required: str | None = None,
+) -> RoutineLibrary | None:
+    """The K routines of a run: mined from `demo`, or the best K of the library at `library_path`.
+
+    K larger than what the miner finds (or the saved library holds) is not an error: the run
+    uses every routine there is, with a warning. `num_routines=0` gives None (no routines).
+
+    Args:
+        env_id: the env the routines act in.
+        num_routines: K.
+        demo: the demo to mine (not needed with `library_path`).
+        library_path: a saved `RoutineLibrary` JSON to take the best K of, instead of mining.
+        proposer, length_weight, alpha, seed: the miner (`routine_gym.mining.make_proposer`).
+        source: provenance the mined library records (the demo's path).
+        env_kwargs: `gym.make` keyword arguments of the env a saved library is checked against.
+        required: when set (`"--mode rapl"`), finding no routine is an error naming it.
+
+    Raises:
+        ValueError: `num_routines` is negative, or the saved library was mined on another env
+            or holds actions the env does not have.
+        SystemExit: `required` and no routine was found.
+    """
+    if num_routines < 0:
+        raise ValueError(f"num_routines needs to be ≥ 0, actual value: {num_routines}")
+    if num_routines == 0:
+        return None
+    if library_path is not None:
+        library = RoutineLibrary.load(library_path)
+        mined_on = library.source.get("env_id")
+        if not same_env(mined_on, env_id):
+            raise ValueError(
+                f"{library_path} was mined from a demo of {mined_on}, not {env_id}"
+            )
+        if demo is not None:
+            n, meanings = demo.num_actions, list(demo.action_meanings)
+        else:
+            n, meanings = _env_actions(env_id, env_kwargs)
+        if library.action_meanings is not None and meanings is not None and list(
+            library.action_meanings
+        ) != list(meanings):
+            raise ValueError(
+                f"{library_path} has actions {list(library.action_meanings)}, "
+                f"{env_id} has {list(meanings)}: a library of another env"
+            )
+        bad = [r for r in library.routines if max(r) >= n]
+        if bad:
+            raise ValueError(
+                f"{library_path}: routine {bad[0]} uses an action outside {env_id}'s "
+                f"Discrete({n})"
+            )
+        if len(library) < num_routines:
+            warnings.warn(
+                f"{library_path} holds {len(library)} routine(s), fewer than the "
+                f"{num_routines} asked for; using {len(library)}",
+                stacklevel=2,
+            )
+        k = min(num_routines, len(library))
+        library = RoutineLibrary(
+            routines=library.routines[:k],
+            scores=library.scores[:k],
+            frequencies=library.frequencies[:k],
+            occurrences=library.occurrences[:k],
+            params=library.params,
+            source={**library.source, "path": library_path},
+            action_meanings=library.action_meanings,
+        )
+        where = library_path
+    else:
+        if demo is None:
+            raise ValueError("load_routines needs a demo to mine or a library_path")
+        miner = make_proposer(proposer, num_routines, length_weight, alpha, seed=seed)
+        with warnings.catch_warnings():
+            # The miner's own "only k routines survive" warning is re-issued below.
+            warnings.simplefilter("ignore")
+            library = miner.mine(demo, source=source)
+        if 0 < len(library) < num_routines:
+            warnings.warn(
+                f"the demo yields {len(library)} routine(s) after scoring and pruning, fewer "
+                f"than --num-routines {num_routines}; using {len(library)}",
+                stacklevel=2,
+            )
+        where = (source or {}).get("path", "the demo")
+    if len(library) == 0:
+        if required is not None:
+            raise SystemExit(
+                f"{required} found no routine in {where} (the demo may be too short or too "
+                "varied); use a longer demo, a smaller --alpha, or no routines "
+                "(rapl_a2c.py --mode a2c, rapl_sqil.py --num-routines 0)"
+            )
+        warnings.warn(f"{where} yields no routine; the run uses the primitive actions only",
+                      stacklevel=2)
+        return None
+    return library

@@ -1,0 +1,230 @@
+"""The run set-up every script in `algos/` shares: the plumbing CleanRL writes at the top of
+each script, written once.
+
+`start_run(args, script, checkpoint_keys)` checks the arguments, resolves `--resume` (the
+saved `Args`, the checkpoint, the run's own folder), makes the run folder
+`{run_dir}/{env}__{exp_name}[-{mode}]__{seed}__{time}`, the TensorBoard writer with the
+hyper-parameter table, seeds Python, NumPy and torch (and a `numpy.random.Generator` for the
+script's own draws), sets torch's threads and picks the device. The `Run` it returns saves
+checkpoints (with every RNG state and the `Args` as JSON) and the model through the one atomic
+writer of `routine_gym.atomic`.
+
+`check_args(args)` is the one argument check: every numeric flag with a domain, by its field
+name, with Gymnasium-style messages that name the flag and the bad value
+(`--gamma needs to be in (0, 1], actual value: 1.5`).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import random
+import sys
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+import numpy as np
+import torch
+
+from routine_gym.atomic import atomic_write_bytes
+from routine_gym.checkpoint import CHECKPOINT_NAME, resume_settings, write_checkpoint
+from routine_gym.rng import rng_state, set_rng_state
+
+__all__ = ["Run", "check_args", "parse_args", "start_run"]
+
+
+# -- the argument check ------------------------------------------------------------------------
+
+#: Each numeric flag's domain, by `Args` field name: (test, what the message says it needs).
+_AT_LEAST_1 = (lambda v: v >= 1, "≥ 1")
+_AT_LEAST_0 = (lambda v: v >= 0, "≥ 0")
+_POSITIVE = (lambda v: v > 0, "> 0")
+_UNIT = (lambda v: 0 < v <= 1, "in (0, 1]")
+DOMAINS: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "total_timesteps": _AT_LEAST_1,
+    "gradient_steps": _AT_LEAST_1,
+    "num_envs": _AT_LEAST_1,
+    "num_steps": _AT_LEAST_1,
+    "num_routines": _AT_LEAST_0,
+    "alpha": _AT_LEAST_1,
+    "length_weight": _AT_LEAST_0,
+    "gamma": _UNIT,
+    "gae_lambda": (lambda v: 0 <= v <= 1, "in [0, 1]"),
+    "learning_rate": _POSITIVE,
+    "disc_learning_rate": _POSITIVE,
+    "reward_scale": _POSITIVE,
+    "ent_coef": _AT_LEAST_0,
+    "vf_coef": _AT_LEAST_0,
+    "prim_coef": _AT_LEAST_0,
+    "max_grad_norm": _POSITIVE,
+    "rmsprop_alpha": (lambda v: 0 <= v < 1, "in [0, 1)"),
+    "rmsprop_eps": _POSITIVE,
+    "temperature": _POSITIVE,
+    "tau": _UNIT,
+    "batch_size": _AT_LEAST_1,
+    "buffer_size": (lambda v: v >= 8, "≥ 8"),
+    "train_frequency": _AT_LEAST_1,
+    "target_network_frequency": _AT_LEAST_1,
+    "lambda_sample": _AT_LEAST_0,
+    "learning_starts": _AT_LEAST_0,
+    "num_minibatches": _AT_LEAST_1,
+    "update_epochs": _AT_LEAST_1,
+    "disc_minibatches": _AT_LEAST_1,
+    "disc_epochs": _AT_LEAST_1,
+    "clip_coef": _POSITIVE,
+    "eval_episodes": _AT_LEAST_0,
+    "eval_max_steps": _AT_LEAST_1,
+    "demo_episodes": _AT_LEAST_1,
+    "checkpoint_every": _AT_LEAST_0,
+    "log_every": _AT_LEAST_1,
+    "torch_threads": _AT_LEAST_0,
+    "num_levels": _AT_LEAST_0,
+    "start_level": _AT_LEAST_0,
+}
+
+
+def _flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def check_args(args: Any, extra: Iterable[tuple[str, bool, str]] = ()) -> None:
+    """Refuse any numeric flag outside its domain (`DOMAINS`), before any work starts.
+
+    Args:
+        args: a script's `Args`; every field named in `DOMAINS` is checked (None means unset
+            and passes).
+        extra: the script's own rules, as `(field, holds, what it needs)`.
+
+    Raises:
+        ValueError: `--flag needs to be <domain>, actual value: <value>`.
+
+    Example:
+        >>> from dataclasses import dataclass
+        >>> @dataclass
+        ... class Args:
+        ...     gamma: float = 1.5
+        >>> check_args(Args())
+        Traceback (most recent call last):
+        ...
+        ValueError: --gamma needs to be in (0, 1], actual value: 1.5
+    """
+    for f in fields(args):
+        if f.name not in DOMAINS:
+            continue
+        value = getattr(args, f.name)
+        if value is None:
+            continue
+        test, needs = DOMAINS[f.name]
+        bad_number = isinstance(value, float) and not math.isfinite(value)
+        if bad_number or not test(value):
+            raise ValueError(f"{_flag(f.name)} needs to be {needs}, actual value: {value}")
+    for name, holds, needs in extra:
+        if not holds:
+            raise ValueError(f"{_flag(name)} needs to be {needs}, "
+                             f"actual value: {getattr(args, name)}")
+
+
+def parse_args(args_type: type, renamed: dict[str, str] | None = None,
+               argv: Sequence[str] | None = None) -> Any:
+    """`tyro.cli(args_type)`, after refusing flags that were renamed, naming the new one."""
+    import tyro
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    for old, new in (renamed or {}).items():
+        if any(a == old or a.startswith(old + "=") for a in argv):
+            raise SystemExit(f"{old} was renamed: use {new}")
+    return tyro.cli(args_type, args=argv)
+
+
+# -- the run ----------------------------------------------------------------------------------
+
+
+@dataclass
+class Run:
+    """A started run: its settings, folder, writer, device, RNG and (resumed) checkpoint."""
+
+    args: Any
+    name: str
+    path: str
+    writer: Any
+    device: torch.device
+    rng: np.random.Generator
+    checkpoint: dict[str, Any] | None
+    """The checkpoint `--resume` read (None for a new run)."""
+
+    @property
+    def checkpoint_path(self) -> str:
+        return os.path.join(self.path, CHECKPOINT_NAME)
+
+    def save_checkpoint(self, state: dict[str, Any]) -> None:
+        """Write `state` plus every RNG state and the `Args` atomically as the checkpoint."""
+        write_checkpoint(
+            {**state, "rng": rng_state(self.rng), "args": json.dumps(asdict(self.args))},
+            self.checkpoint_path,
+        )
+
+    def restore_rng(self) -> None:
+        """Put every RNG back where the resumed checkpoint left it."""
+        set_rng_state(self.checkpoint["rng"], self.rng)
+
+    def save_model(self, model: torch.nn.Module | dict[str, torch.nn.Module]) -> str:
+        """Save `model`'s weights (or each named model's) to `{run}/model.pt` atomically."""
+        buffer = io.BytesIO()
+        if isinstance(model, dict):
+            torch.save({name: m.state_dict() for name, m in model.items()}, buffer)
+        else:
+            torch.save(model.state_dict(), buffer)
+        path = os.path.join(self.path, "model.pt")
+        atomic_write_bytes(path, buffer.getvalue())
+        print(f"model saved to {path}")
+        return path
+
+
+def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
+              budget: str = "total_timesteps", lower_budget: bool = False,
+              extra_checks: Iterable[tuple[str, bool, str]] = ()) -> Run:
+    """Check `args`, resume or make the run folder, open the writer, seed, pick the device.
+
+    Args:
+        args: the script's `Args` (with `exp_name`, `seed`, `env_id`, `run_dir`, `resume`,
+            `torch_deterministic`, `torch_threads`, `cuda`).
+        script: the script's file name, for error messages (`"rapl_a2c.py"`).
+        checkpoint_keys: what the script's checkpoints hold (`--resume` checks for each).
+        budget: the `Args` field of the run's budget (`--resume` may change it).
+        lower_budget: a lower budget on `--resume` is taken as it is (to go straight to
+            evaluation); by default it may only be raised.
+        extra_checks: the script's own argument rules (see `check_args`).
+    """
+    check_args(args, extra_checks)
+    if args.resume:
+        args, checkpoint, path = resume_settings(args, checkpoint_keys, script,
+                                                 lower_budget=lower_budget, budget=budget)
+        name = os.path.basename(path)
+    else:
+        checkpoint = None
+        mode = getattr(args, "mode", None)
+        experiment = args.exp_name if mode is None else f"{args.exp_name}-{mode}"
+        name = f"{args.env_id.replace('/', '-')}__{experiment}__{args.seed}__{int(time.time())}"
+        path = os.path.join(args.run_dir, name)
+    os.makedirs(path, exist_ok=True)
+    from torch.utils.tensorboard import SummaryWriter
+
+    writer = SummaryWriter(path)
+    writer.add_text(
+        "hyperparameters",
+        "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in vars(args).items()),
+    )
+    random.seed(args.seed)
+    np.random.seed(args.seed)  # noqa: NPY002  (libraries draw from the global RNG)
+    torch.manual_seed(args.seed)
+    rng = np.random.default_rng(args.seed)
+    torch.backends.cudnn.deterministic = args.torch_deterministic
+    if args.torch_threads > 0:
+        torch.set_num_threads(args.torch_threads)
+    device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
+    return Run(args=args, name=name, path=path, writer=writer, device=device, rng=rng,
+               checkpoint=checkpoint)
