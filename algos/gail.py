@@ -42,7 +42,7 @@ from routine_gym.evaluation import evaluate_policy, save_evaluation
 from routine_gym.imitation import agent_view_states, demo_pairs
 from routine_gym.loading import check_demo_env, load_demo
 from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.run import parse_args, start_run
+from routine_gym.run import Every, parse_args, start_run
 
 
 @dataclass
@@ -212,11 +212,10 @@ def main(args: Args) -> dict | None:
             "global_step": global_step,
         })
 
-    next_checkpoint = (global_step // args.checkpoint_every + 1) * args.checkpoint_every \
-        if args.checkpoint_every > 0 else None
+    checkpoints = Every(args.checkpoint_every, start=global_step)
 
     start_time, start_step = time.time(), global_step
-    next_log = (global_step // args.log_every + 1) * args.log_every
+    logs = Every(args.log_every, start=global_step)
     recent_returns: list[float] = []
     # The env is reset with a seed that depends on where the run is, so a resumed run does not
     # replay the episodes it already saw.
@@ -348,16 +347,14 @@ def main(args: Args) -> dict | None:
         writer.add_scalar("losses/disc_expert_accuracy", expert_acc.item(), global_step)
         writer.add_scalar("charts/gail_reward", rewards.mean().item(), global_step)
         writer.add_scalar("charts/SPS", sps, global_step)
-        if global_step >= next_log or iteration == num_iterations:
-            next_log = (global_step // args.log_every + 1) * args.log_every
+        if logs.due(global_step) or iteration == num_iterations:
             mean_ret = f"{np.mean(recent_returns[-20:]):.1f}" if recent_returns else "n/a"
             print(f"step {global_step:>10,d}/{args.total_timesteps:,d}  "
                   f"SPS {sps:>5d}  return(last 20) {mean_ret:>8s}  "
                   f"disc loss {disc_loss.item():.3f}  gail reward {rewards.mean().item():.3f}",
                   flush=True)
-        if next_checkpoint is not None and global_step >= next_checkpoint:
+        if checkpoints.due(global_step):
             save_checkpoint()
-            next_checkpoint = (global_step // args.checkpoint_every + 1) * args.checkpoint_every
 
     envs.close()
     if args.checkpoint_every > 0:

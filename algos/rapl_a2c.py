@@ -56,7 +56,7 @@ from routine_gym.returns import (
     primitive_returns,
     routine_reward_and_discount,
 )
-from routine_gym.run import parse_args, start_run
+from routine_gym.run import Every, parse_args, start_run
 
 
 @dataclass
@@ -279,14 +279,13 @@ def main(args: Args) -> None:
             "library": json.dumps(library.to_dict()) if library is not None else "",
         })
 
-    next_checkpoint = (global_step // args.checkpoint_every + 1) * args.checkpoint_every \
-        if args.checkpoint_every > 0 else None
+    checkpoints = Every(args.checkpoint_every, start=global_step)
 
     # The env is reset with a seed that depends on where the run is, so a resumed run does not
     # replay the episodes it already saw.
     next_obs, _ = envs.reset(seed=args.seed + global_step)
     start_time, start_step = time.time(), global_step
-    decisions, next_log = 0, (global_step // args.log_every + 1) * args.log_every
+    decisions, logs = 0, Every(args.log_every, start=global_step)
     routine_counts = np.zeros(num_actions, dtype=np.int64)
     recent_returns: list[float] = []
 
@@ -390,17 +389,15 @@ def main(args: Args) -> None:
             for k in range(num_routines):
                 writer.add_scalar(f"routines/usage_{k}", usage[num_primitives + k], global_step)
 
-        if global_step >= next_log or global_step >= args.total_timesteps:
-            next_log = (global_step // args.log_every + 1) * args.log_every
+        if logs.due(global_step) or global_step >= args.total_timesteps:
             mean_ret = f"{np.mean(recent_returns[-20:]):.1f}" if recent_returns else "n/a"
             usage = routine_counts[num_primitives:].sum() / max(routine_counts.sum(), 1)
             print(f"step {global_step:>10,d}/{args.total_timesteps:,d}  "
                   f"SPS {int((global_step - start_step) / elapsed):>5d}  "
                   f"return(last 20) {mean_ret:>8s}  episodes {len(recent_returns):>5d}  "
                   f"routine use {usage:5.1%}", flush=True)
-        if next_checkpoint is not None and global_step >= next_checkpoint:
+        if checkpoints.due(global_step):
             save_checkpoint()
-            next_checkpoint = (global_step // args.checkpoint_every + 1) * args.checkpoint_every
 
     envs.close()
     if args.checkpoint_every > 0:

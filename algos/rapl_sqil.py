@@ -59,7 +59,7 @@ from routine_gym.library import RoutineLibrary
 from routine_gym.loading import check_demo_env, load_demo, load_routines
 from routine_gym.networks import ObservationEncoder, layer_init
 from routine_gym.replay_memory import FrameReplayMemory
-from routine_gym.run import parse_args, start_run
+from routine_gym.run import Every, parse_args, start_run
 
 
 @dataclass
@@ -209,15 +209,14 @@ def main(args: Args) -> dict | None:
             "library": json.dumps(library.to_dict()) if library is not None else "",
         })
 
-    next_checkpoint = (global_step // args.checkpoint_every + 1) * args.checkpoint_every \
-        if args.checkpoint_every > 0 else None
+    checkpoints = Every(args.checkpoint_every, start=global_step)
     learning_starts = global_step + args.learning_starts  # a resumed run refills its memory first
     session_updates = 0  # updates of this process (a resumed run also counts the earlier ones)
 
     obs, _ = env.reset(seed=args.seed + global_step)
     memory.start_episode(obs)
     start_time, start_step = time.time(), global_step
-    next_log = (global_step // args.log_every + 1) * args.log_every
+    logs = Every(args.log_every, start=global_step)
     action_counts = np.zeros(num_actions, dtype=np.int64)
     recent_returns: list[float] = []
 
@@ -292,8 +291,7 @@ def main(args: Args) -> dict | None:
                     writer.add_scalar(f"routines/usage_{k}", usage[num_primitives + k],
                                       global_step)
 
-        if global_step >= next_log or global_step >= args.total_timesteps:
-            next_log = (global_step // args.log_every + 1) * args.log_every
+        if logs.due(global_step) or global_step >= args.total_timesteps:
             elapsed = max(time.time() - start_time, 1e-9)
             mean_ret = f"{np.mean(recent_returns[-20:]):.1f}" if recent_returns else "n/a"
             usage = action_counts[num_primitives:].sum() / max(action_counts.sum(), 1)
@@ -301,9 +299,8 @@ def main(args: Args) -> dict | None:
                   f"SPS {int((global_step - start_step) / elapsed):>5d}  "
                   f"return(last 20) {mean_ret:>8s}  episodes {len(recent_returns):>5d}  "
                   f"updates {updates:>7d}  routine use {usage:5.1%}", flush=True)
-        if next_checkpoint is not None and global_step >= next_checkpoint:
+        if checkpoints.due(global_step):
             save_checkpoint()
-            next_checkpoint = (global_step // args.checkpoint_every + 1) * args.checkpoint_every
 
     env.close()
     if args.checkpoint_every > 0:

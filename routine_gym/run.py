@@ -34,7 +34,7 @@ from routine_gym.atomic import atomic_write_bytes
 from routine_gym.checkpoint import CHECKPOINT_NAME, resume_settings, write_checkpoint
 from routine_gym.rng import rng_state, set_rng_state
 
-__all__ = ["Run", "check_args", "parse_args", "start_run"]
+__all__ = ["Every", "Run", "check_args", "parse_args", "start_run"]
 
 
 # -- the argument check ------------------------------------------------------------------------
@@ -141,6 +141,30 @@ def parse_args(args_type: type, renamed: dict[str, str] | None = None,
 
 
 # -- the run ----------------------------------------------------------------------------------
+
+
+class Every:
+    """Fires once each time a step counter passes the next multiple of `period` (0: never).
+
+    Steps advance by more than one (a rollout, a routine), so a multiple may be jumped over;
+    it fires on the first step at or past it. A resumed run starts counting where it stopped.
+
+    Example:
+        >>> checkpoints = Every(100, start=30)
+        >>> [step for step in (80, 100, 150, 230, 240, 310) if checkpoints.due(step)]
+        [100, 230, 310]
+    """
+
+    def __init__(self, period: int, start: int = 0) -> None:
+        self.period = int(period)
+        self.next = (start // self.period + 1) * self.period if self.period > 0 else None
+
+    def due(self, step: int) -> bool:
+        if self.next is None or step < self.next:
+            return False
+        self.next = (step // self.period + 1) * self.period
+        return True
+
 
 
 @dataclass
