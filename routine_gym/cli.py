@@ -202,13 +202,13 @@ def _resolve_policy(spec: str, env, noise: float = 0.0, seed: int = 0) -> Callab
         space = env.action_space
         return lambda obs: int(space.sample())
     if spec == "expert":
-        unwrapped = env.unwrapped
-        if type(unwrapped).__name__ != "MiniQbertEnv":
-            raise CLIError("--policy expert is MiniQbert's scripted expert; "
-                           f"{env.spec.id if env.spec else env} has none")
-        from routine_gym.envs.miniqbert import scripted_expert
+        from routine_gym.envs import profile_for
 
-        return scripted_expert(unwrapped, noise=noise, rng=np.random.default_rng(seed))
+        expert = profile_for(env.spec.id).scripted_expert(env, noise, np.random.default_rng(seed))
+        if expert is None:
+            raise CLIError("--policy expert is an env's scripted expert (MiniQbert's "
+                           f"scripted expert, say); {env.spec.id if env.spec else env} has none")
+        return expert
     if ":" not in spec:
         raise CLIError(f"unknown policy {spec!r}: use random, expert or module:function")
     module_name, _, attr = spec.partition(":")

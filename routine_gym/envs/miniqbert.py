@@ -573,5 +573,8 @@ class MiniQbertProfile(EnvProfile):
 
         return EpisodicLife(env) if training else env
 
+    def scripted_expert(self, env: gym.Env, noise: float, rng: Any) -> ScriptedExpert:
+        return scripted_expert(env.unwrapped, noise=noise, rng=rng)
+
 
 PROFILE = MiniQbertProfile()

@@ -76,6 +76,11 @@ class EnvProfile:
         """The game's key in the human-normalised score table, or None (no such score)."""
         return None
 
+    def scripted_expert(self, env: gym.Env, noise: float,
+                        rng: Any) -> Callable[[Any], int] | None:
+        """A scripted expert policy for `env` (`routine-gym record --policy expert`), or None."""
+        return None
+
     def play_fps(self, env: gym.Env) -> int | None:
         """Steps per second for a human playing `env` (None: the env's `render_fps`)."""
         return None
