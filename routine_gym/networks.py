@@ -1,7 +1,7 @@
 """Networks of SPEC §5, shared by the training scripts.
 
 Nature CNN on Atari (Mnih et al. 2015), IMPALA CNN on Procgen (Espeholt et al. 2018, as in the
-Procgen paper), a 64-64 tanh MLP for flat observations and a small CNN for other images.
+Procgen paper), MinAtar's one-convolution network on MinAtar (Young & Tian 2019), a 64-64 tanh MLP for flat observations and a small CNN for other images.
 `make_torso(env_id, obs_shape)` builds the one the env's profile names (`EnvProfile.network`);
 `ObservationEncoder` adds the scaling and the channel order, so a script's agent is a torso
 plus its heads.
@@ -85,6 +85,12 @@ def make_torso(env_id: str, obs_shape: tuple[int, ...]) -> tuple[nn.Module, int]
         return nn.Sequential(
             *stages, nn.Flatten(), nn.ReLU(), layer_init(nn.Linear(n, 256)), nn.ReLU()
         ), 256
+    if network == "minatar":  # MinAtar's network (Young & Tian 2019): one 3×3 conv, 128 units
+        n = 16 * (h - 2) * (w - 2)
+        return nn.Sequential(
+            layer_init(nn.Conv2d(c, 16, 3, stride=1)), nn.ReLU(), nn.Flatten(),
+            layer_init(nn.Linear(n, 128)), nn.ReLU(),
+        ), 128
     conv = nn.Sequential(
         layer_init(nn.Conv2d(c, 16, 3, stride=2)), nn.ReLU(),
         layer_init(nn.Conv2d(16, 32, 3, stride=2)), nn.ReLU(),

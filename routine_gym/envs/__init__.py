@@ -3,11 +3,14 @@
 Importing `routine_gym` registers:
 - `MiniQbert-v0`: the small pyramid game of the paper's Figure 1 (`routine_gym.envs.miniqbert`);
 - `procgen/CoinRun-v0`: Procgen CoinRun as a Gymnasium env (`routine_gym.envs.procgen`);
+- `MinAtar/{Asterix,Breakout,Freeway,Seaquest,SpaceInvaders}-v1`: MinAtar's games
+  (`routine_gym.envs.minatar`);
 and `register_envs()` (called by everything in routine-gym that looks up or makes an env) adds
 the ALE Atari envs (`ALE/Qbert-v5`, ...) by importing `ale_py`.
 
 Each env family has a profile (`profile_for(env_id)`, an `EnvProfile` from
-`routine_gym.envs.profile`): `atari.py`, `procgen.py`, `miniqbert.py`, `generic.py`. It holds
+`routine_gym.envs.profile`): `atari.py`, `procgen.py`, `miniqbert.py`, `minatar.py`,
+`generic.py`. It holds
 what differs between families; `factory.py` builds envs from it.
 """
 
@@ -65,6 +68,7 @@ PROFILES: list[tuple[str, str]] = [
     ("ale_py", "routine_gym.envs.atari:PROFILE"),
     ("routine_gym.envs.procgen", "routine_gym.envs.procgen:PROFILE"),
     ("routine_gym.envs.miniqbert", "routine_gym.envs.miniqbert:PROFILE"),
+    ("routine_gym.envs.minatar", "routine_gym.envs.minatar:PROFILE"),
 ]
 _GENERIC = "routine_gym.envs.generic:PROFILE"
 
@@ -115,8 +119,9 @@ def env_family(env_id: str) -> str:
 
 
 def register_own_envs() -> None:
-    """Register `MiniQbert-v0` and `procgen/CoinRun-v0` (lazy entry points: nothing heavy is
-    imported); `import routine_gym` calls it. Calling it twice is harmless."""
+    """Register `MiniQbert-v0`, `procgen/CoinRun-v0` and MinAtar's five games (lazy entry
+    points: nothing heavy is imported); `import routine_gym` calls it. Calling it twice is
+    harmless."""
     registry = gym.envs.registration.registry
     if "MiniQbert-v0" not in registry:
         gym.register(
@@ -130,6 +135,9 @@ def register_own_envs() -> None:
             entry_point="routine_gym.envs.procgen:ProcgenEnv",
             kwargs={"env_name": "coinrun"},
         )
+    from routine_gym.envs import minatar
+
+    minatar.register()
 
 
 _ale_registered = False

@@ -33,7 +33,13 @@ class _FramePlayback(gym.Env):
 
     def __init__(self, frames: np.ndarray) -> None:
         self.frames = frames
-        self.observation_space = spaces.Box(0, 255, frames.shape[1:], frames.dtype)
+        if frames.dtype == np.bool_:
+            low, high = 0, 1
+        elif frames.dtype.kind in "iu":
+            low, high = np.iinfo(frames.dtype).min, np.iinfo(frames.dtype).max
+        else:
+            low, high = -np.inf, np.inf
+        self.observation_space = spaces.Box(low, high, frames.shape[1:], frames.dtype)
         self.action_space = spaces.Discrete(1)
         self._t = 0
 
