@@ -13,7 +13,7 @@ import pytest
 import torch
 
 import routine_gym  # noqa: F401  (registers the MinAtar games)
-from routine_gym.demo import Demo, record_agent_demo, record_human_demo, replay
+from routine_gym.demo import record_agent_demo, record_human_demo, replay
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_env
 from routine_gym.envs.minatar import GAMES, MAX_EPISODE_STEPS
