@@ -1,7 +1,8 @@
 """Networks of SPEC §5, shared by the training scripts.
 
 Nature CNN on Atari (Mnih et al. 2015), IMPALA CNN on Procgen (Espeholt et al. 2018, as in the
-Procgen paper), MinAtar's one-convolution network on MinAtar (Young & Tian 2019), a 64-64 tanh MLP for flat observations and a small CNN for other images.
+Procgen paper), MinAtar's one-convolution network on MinAtar (Young & Tian 2019), a 64-64 tanh
+MLP for flat observations and a small CNN for other images.
 `make_torso(env_id, obs_shape)` builds the one the env's profile names (`EnvProfile.network`);
 `ObservationEncoder` adds the scaling and the channel order, so a script's agent is a torso
 plus its heads.
