@@ -1,8 +1,8 @@
 """Networks of SPEC §5, shared by the training scripts.
 
 Nature CNN on Atari (Mnih et al. 2015), IMPALA CNN on Procgen (Espeholt et al. 2018, as in the
-Procgen paper), MinAtar's one-convolution network on MinAtar (Young & Tian 2019), a 64-64 tanh
-MLP for flat observations and a small CNN for other images.
+Procgen paper), a 64-64 tanh MLP for flat observations and a small CNN for other images; a
+family's profile may bring a torso of its own (`EnvProfile.torso`: MinAtar's network).
 `make_torso(env_id, obs_shape)` builds the one the env's profile names (`EnvProfile.network`);
 `ObservationEncoder` adds the scaling and the channel order, so a script's agent is a torso
 plus its heads.
@@ -61,7 +61,11 @@ def image_layout(shape: tuple[int, ...]) -> tuple[int, int, int, bool]:
 
 def make_torso(env_id: str, obs_shape: tuple[int, ...]) -> tuple[nn.Module, int]:
     """The feature extractor for `env_id`'s observations and its output size."""
-    network = profile_for(env_id).network
+    profile = profile_for(env_id)
+    own = profile.torso(tuple(obs_shape))
+    if own is not None:  # a family with a network of its own (MinAtar's)
+        return own
+    network = profile.network
     if len(obs_shape) == 1:
         return nn.Sequential(
             layer_init(nn.Linear(obs_shape[0], 64)), nn.Tanh(),
@@ -86,12 +90,6 @@ def make_torso(env_id: str, obs_shape: tuple[int, ...]) -> tuple[nn.Module, int]
         return nn.Sequential(
             *stages, nn.Flatten(), nn.ReLU(), layer_init(nn.Linear(n, 256)), nn.ReLU()
         ), 256
-    if network == "minatar":  # MinAtar's network (Young & Tian 2019): one 3×3 conv, 128 units
-        n = 16 * (h - 2) * (w - 2)
-        return nn.Sequential(
-            layer_init(nn.Conv2d(c, 16, 3, stride=1)), nn.ReLU(), nn.Flatten(),
-            layer_init(nn.Linear(n, 128)), nn.ReLU(),
-        ), 128
     conv = nn.Sequential(
         layer_init(nn.Conv2d(c, 16, 3, stride=2)), nn.ReLU(),
         layer_init(nn.Conv2d(16, 32, 3, stride=2)), nn.ReLU(),
