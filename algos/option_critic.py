@@ -12,7 +12,7 @@ terminates with probability `β_ω(s)` (and at the start of an episode), and a n
 ε-greedily on `Q_Ω(s, ·)` (ε = 0.1); the action is drawn from `π_ω(· | s)`. With the targets of
 `routine_gym.option_critic`:
 
-    U(s', ω) = (1 − β_ω(s')) Q_Ω(s', ω) + β_ω(s') max Q_Ω(s', ·)       G_t = r_t + γ G_{t+1}, G_N = U
+    U(s', ω) = (1 − β_ω(s')) Q_Ω(s', ω) + β_ω(s') max Q_Ω(s', ·)     G_t = r_t + γ G_{t+1}, G_N = U
     L = −log π_ω(a_t|s_t)(G_t − Q_Ω(s_t, ω_t)) − λ_entropy H(π_ω(·|s_t))
         + λ_value (G_t − Q_Ω(s_t, ω_t))² + λ_β β_ω(s_{t+1})(Q_Ω(s_{t+1}, ω_t) − V_Ω(s_{t+1}) + ξ)
 
@@ -227,10 +227,10 @@ def main(args: Args) -> dict | None:
         # at s_t and the termination loss's β at s_t for the option that arrived there.
         q, logits, beta = agent(torch.as_tensor(next_obs, device=device))
         q_taken, logprobs, entropies, arrival_beta, arrival_q = [], [], [], [], []
-        taken = []
+        taken: list[torch.Tensor] = []
         for step in range(n):
             if step > 0:  # β_{ω_{t-1}}(s_t) and Q_Ω(s_t, ·) for the termination loss of t − 1
-                arrival_beta.append(beta.gather(1, prev[:, None]).squeeze(1))
+                arrival_beta.append(beta.gather(1, taken[-1][:, None]).squeeze(1))
                 arrival_q.append(q.detach())
             # Terminate the running option with probability β_ω(s), then choose ε-greedily.
             beta_now = beta.detach().cpu().numpy()[np.arange(e), options]
@@ -269,14 +269,13 @@ def main(args: Args) -> dict | None:
                     writer.add_scalar("charts/episodic_length", length, global_step)
             finished_lengths += option_lengths[done].tolist()
             starts = done.copy()
-            prev = option_t
             q, logits, beta = agent(torch.as_tensor(next_obs, device=device))
-        arrival_beta.append(beta.gather(1, prev[:, None]).squeeze(1))
+        arrival_beta.append(beta.gather(1, taken[-1][:, None]).squeeze(1))
         arrival_q.append(q.detach())
 
         # Targets: G_t = r_t + γ G_{t+1} from U(s_N, ω_{N−1}); no bootstrap across an episode end.
         with torch.no_grad():
-            bootstrap = value_upon_arrival(q, beta, prev).cpu().numpy()
+            bootstrap = value_upon_arrival(q, beta, taken[-1]).cpu().numpy()
         returns = torch.as_tensor(option_returns(rewards, dones, bootstrap, args.gamma),
                                   dtype=torch.float32, device=device)
         q_taken_t = torch.stack(q_taken)
