@@ -31,7 +31,7 @@ from routine_gym.evaluation import evaluate_policy, save_evaluation
 from routine_gym.imitation import agent_view_states, demo_pairs
 from routine_gym.loading import check_demo_env, load_demo
 from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.run import parse_args, start_run
+from routine_gym.run import run_script, start_run
 
 
 @dataclass
@@ -111,8 +111,8 @@ def main(args: Args) -> dict | None:
 
     step = 0
     if run.checkpoint is not None:
-        policy.load_state_dict(run.checkpoint["model"])
-        optimizer.load_state_dict(run.checkpoint["optimizer"])
+        run.restore(policy, "model")
+        run.restore(optimizer, "optimizer")
         step = run.checkpoint["step"]
         run.restore_rng()
         print(f"resumed {run.name} at step {step}")
@@ -167,4 +167,4 @@ def main(args: Args) -> dict | None:
 if __name__ == "__main__":
     warnings.filterwarnings("ignore", category=DeprecationWarning)
     routine_gym.register_envs()
-    main(parse_args(Args, renamed={"--total-timesteps": "--gradient-steps"}))
+    run_script(main, Args, renamed={"--total-timesteps": "--gradient-steps"})

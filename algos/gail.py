@@ -42,7 +42,7 @@ from routine_gym.evaluation import evaluate_policy, save_evaluation
 from routine_gym.imitation import agent_view_states, demo_pairs
 from routine_gym.loading import check_demo_env, load_demo
 from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.run import Every, parse_args, start_run
+from routine_gym.run import Every, run_script, start_run
 
 
 @dataclass
@@ -197,10 +197,10 @@ def main(args: Args) -> dict | None:
 
     global_step = 0
     if run.checkpoint is not None:
-        agent.load_state_dict(run.checkpoint["agent"])
-        discriminator.load_state_dict(run.checkpoint["discriminator"])
-        optimizer.load_state_dict(run.checkpoint["optimizer"])
-        disc_optimizer.load_state_dict(run.checkpoint["disc_optimizer"])
+        run.restore(agent, "agent")
+        run.restore(discriminator, "discriminator")
+        run.restore(optimizer, "optimizer")
+        run.restore(disc_optimizer, "disc_optimizer")
         global_step = run.checkpoint["global_step"]
         run.restore_rng()
         print(f"resumed {run.name} at step {global_step}")
@@ -384,4 +384,4 @@ def main(args: Args) -> dict | None:
 if __name__ == "__main__":
     warnings.filterwarnings("ignore", category=DeprecationWarning)
     routine_gym.register_envs()
-    main(parse_args(Args))
+    run_script(main, Args)

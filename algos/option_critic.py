@@ -48,7 +48,7 @@ from routine_gym.option_critic import (
     termination_advantage,
     value_upon_arrival,
 )
-from routine_gym.run import Every, parse_args, start_run
+from routine_gym.run import Every, run_script, start_run
 
 
 @dataclass
@@ -189,8 +189,8 @@ def main(args: Args) -> dict | None:
 
     global_step, iteration = 0, 0
     if run.checkpoint is not None:
-        agent.load_state_dict(run.checkpoint["model"])
-        optimizer.load_state_dict(run.checkpoint["optimizer"])
+        run.restore(agent, "model")
+        run.restore(optimizer, "optimizer")
         global_step, iteration = run.checkpoint["global_step"], run.checkpoint["iteration"]
         run.restore_rng()
         print(f"resumed {run.name} at step {global_step}")
@@ -357,4 +357,4 @@ def main(args: Args) -> dict | None:
 if __name__ == "__main__":
     warnings.filterwarnings("ignore", category=DeprecationWarning)
     routine_gym.register_envs()
-    main(parse_args(Args))
+    run_script(main, Args)

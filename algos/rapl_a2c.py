@@ -56,7 +56,7 @@ from routine_gym.returns import (
     primitive_returns,
     routine_reward_and_discount,
 )
-from routine_gym.run import Every, parse_args, start_run
+from routine_gym.run import Every, run_script, start_run
 
 
 @dataclass
@@ -266,8 +266,8 @@ def main(args: Args) -> None:
 
     global_step, iteration = 0, 0
     if run.checkpoint is not None:
-        agent.load_state_dict(run.checkpoint["model"])
-        optimizer.load_state_dict(run.checkpoint["optimizer"])
+        run.restore(agent, "model")
+        run.restore(optimizer, "optimizer")
         global_step, iteration = run.checkpoint["global_step"], run.checkpoint["iteration"]
         run.restore_rng()
         print(f"resumed {run.name} at step {global_step}")
@@ -442,4 +442,4 @@ def main(args: Args) -> None:
 if __name__ == "__main__":
     warnings.filterwarnings("ignore", category=DeprecationWarning)
     routine_gym.register_envs()
-    main(parse_args(Args, renamed={"--routines": "--routine-library"}))
+    run_script(main, Args, renamed={"--routines": "--routine-library"})

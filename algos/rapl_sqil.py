@@ -59,7 +59,7 @@ from routine_gym.library import RoutineLibrary
 from routine_gym.loading import check_demo_env, load_demo, load_routines
 from routine_gym.networks import ObservationEncoder, layer_init
 from routine_gym.replay_memory import FrameReplayMemory
-from routine_gym.run import Every, parse_args, start_run
+from routine_gym.run import Every, run_script, start_run
 
 
 @dataclass
@@ -195,9 +195,9 @@ def main(args: Args) -> dict | None:
 
     global_step, updates = 0, 0
     if run.checkpoint is not None:
-        q_network.load_state_dict(run.checkpoint["model"])
-        target_network.load_state_dict(run.checkpoint["target"])
-        optimizer.load_state_dict(run.checkpoint["optimizer"])
+        run.restore(q_network, "model")
+        run.restore(target_network, "target")
+        run.restore(optimizer, "optimizer")
         global_step, updates = run.checkpoint["global_step"], run.checkpoint["updates"]
         run.restore_rng()
         print(f"resumed {run.name} at step {global_step}")
@@ -329,4 +329,4 @@ def main(args: Args) -> dict | None:
 if __name__ == "__main__":
     warnings.filterwarnings("ignore", category=DeprecationWarning)
     routine_gym.register_envs()
-    main(parse_args(Args, renamed={"--routines": "--routine-library"}))
+    run_script(main, Args, renamed={"--routines": "--routine-library"})

@@ -14,6 +14,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from routine_gym.atomic import atomic_write_text
 
 Routine = tuple[int, ...]
@@ -47,7 +49,7 @@ class RoutineLibrary:
     action_meanings: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
-        routines = tuple(tuple(int(a) for a in r) for r in self.routines)
+        routines = tuple(tuple(_action_id(a, i) for a in r) for i, r in enumerate(self.routines))
         object.__setattr__(self, "routines", routines)
         for name in ("scores", "frequencies", "occurrences"):
             value = getattr(self, name)
@@ -69,6 +71,13 @@ class RoutineLibrary:
         )
         if self.action_meanings is not None:
             object.__setattr__(self, "action_meanings", tuple(self.action_meanings))
+            n = len(self.action_meanings)
+            for i, routine in enumerate(routines):
+                if max(routine) >= n:
+                    raise ValueError(
+                        f"routine {i} {list(routine)} uses action {max(routine)}, outside the "
+                        f"library's {n} actions {list(self.action_meanings)}"
+                    )
 
     def __len__(self) -> int:
         return len(self.routines)
@@ -143,7 +152,7 @@ class RoutineLibrary:
                 action_meanings=data.get("action_meanings"),
             )
         except (KeyError, TypeError) as exc:
-            raise ValueError(f"malformed routine library: {exc}") from exc
+            raise ValueError(f"malformed routine library: {exc!r}") from exc
 
     def save(self, path: str | os.PathLike) -> None:
         """Write the library as JSON, atomically (a crash never leaves half a file)."""
@@ -151,15 +160,40 @@ class RoutineLibrary:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> RoutineLibrary:
+        """Read a library written by `save`.
+
+        Raises:
+            FileNotFoundError: no file at `path`.
+            routine_gym.errors.UsageError: naming the file, for a file that is not a valid
+                library (not JSON, not one, a routine with a non-integer or negative action or
+                one outside its named actions).
+        """
+        from routine_gym.errors import UsageError
+
+        if not os.path.isfile(path):
+            if os.path.exists(path):
+                raise UsageError(f"{path}: not a file")
+            raise FileNotFoundError(f"{path}: no such routine library file")
         try:
             with open(path, encoding="utf-8") as f:
                 data = json.load(f)
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{path}: not valid JSON ({exc})") from exc
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise UsageError(f"{path}: not a routine library: not valid JSON ({exc})") from exc
         try:
             return cls.from_dict(data)
         except ValueError as exc:
-            raise ValueError(f"{path}: {exc}") from exc
+            raise UsageError(f"{path}: {exc}") from exc
+
+
+def _action_id(action: Any, routine: int) -> int:
+    """An action id: an integer (or an integral float such as 2.0), never a truncated 2.7."""
+    if isinstance(action, bool):
+        raise ValueError(f"routine {routine} has a boolean action {action!r}")
+    if isinstance(action, int | np.integer):
+        return int(action)
+    if isinstance(action, float | np.floating) and float(action).is_integer():
+        return int(action)
+    raise ValueError(f"routine {routine} has a non-integer action {action!r}")
 
 
 def routine_name(routine: Sequence[int], action_meanings: Sequence[str] | None = None) -> str:

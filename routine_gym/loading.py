@@ -18,6 +18,7 @@ from gymnasium import spaces
 from routine_gym.demo import Demo, shipped_demo_path
 from routine_gym.envs import same_env
 from routine_gym.envs.factory import make_primitive_env
+from routine_gym.errors import UsageError
 from routine_gym.library import RoutineLibrary
 from routine_gym.mining import make_proposer
 
@@ -34,19 +35,24 @@ def load_demo(env_id: str, path: str | None = None, purpose: str = "imitation") 
             (`"imitation"`, `"--mode rapl"`, ...).
 
     Raises:
-        SystemExit: no path was given and no demo of `env_id` ships, with how to make one.
-        ValueError: the file is not a demo, or a demo of another env.
+        UsageError: no path was given and no demo of `env_id` ships (saying how to make one),
+            or the file is not a demo, or a demo of another env.
+        FileNotFoundError: no file at `path`.
     """
     path = path or shipped_demo_path(env_id)
     if path is None:
-        raise SystemExit(
-            f"{purpose} needs a demo, and no demo of {env_id} ships in demos/.\n"
-            f"Record one, then pass it with --demo:\n"
-            f"  routine-gym record {env_id} --policy random --episodes 10 --out demo.npz\n"
-            f"  python algos/rapl_a2c.py --env-id {env_id} --mode a2c --record-demo demo.npz"
-            f"   # a trained A2C expert's demo, as in the paper"
+        raise UsageError(
+            f"{purpose} needs a demo, and no demo of {env_id} ships in demos/: record one "
+            f"(`routine-gym record {env_id} --policy random --episodes 10 --out demo.npz`, or "
+            f"a trained expert's: `python algos/rapl_a2c.py --env-id {env_id} --mode a2c "
+            f"--record-demo demo.npz`) and pass it with --demo"
         )
-    return Demo.load(path, env_id=env_id), path
+    try:
+        return Demo.load(path, env_id=env_id), path
+    except FileNotFoundError:
+        raise FileNotFoundError(f"--demo {path}: no such demo file") from None
+    except ValueError as exc:
+        raise UsageError(str(exc)) from exc
 
 
 def _env_action_meanings(env: gym.Env) -> list[str] | None:
@@ -62,10 +68,10 @@ def check_demo_env(demo: Demo, env_id: str, env_kwargs: dict[str, Any] | None = 
     the minimal-action-set env, though both are `ALE/Qbert-v5`).
 
     Raises:
-        ValueError: naming the demo's and the env's action spaces or meanings.
+        UsageError: naming the demo's and the env's action spaces or meanings.
     """
     if not same_env(demo.env_id, env_id):
-        raise ValueError(f"the demo was recorded on {demo.env_id}, not {env_id}")
+        raise UsageError(f"the demo was recorded on {demo.env_id}, not {env_id}")
     env = make_primitive_env(env_id, **(env_kwargs if env_kwargs is not None else demo.env_kwargs))
     try:
         space = env.action_space
@@ -73,17 +79,17 @@ def check_demo_env(demo: Demo, env_id: str, env_kwargs: dict[str, Any] | None = 
     finally:
         env.close()
     if not isinstance(space, spaces.Discrete):
-        raise ValueError(f"imitation needs a Discrete action space; {env_id} has {space}")
+        raise UsageError(f"imitation needs a Discrete action space; {env_id} has {space}")
     n = int(space.n)
     if demo.num_actions != n:
-        raise ValueError(
+        raise UsageError(
             f"the demo's action space Discrete({demo.num_actions}) does not match {env_id}'s "
             f"Discrete({n}): record the demo on the same env (same action set)"
         )
     demo_meanings = list(demo.action_meanings)
     numeric = [str(a) for a in range(n)]
     if meanings is not None and demo_meanings != numeric and demo_meanings != meanings:
-        raise ValueError(
+        raise UsageError(
             f"the demo's actions {demo_meanings} are not {env_id}'s actions {meanings}"
         )
     return n
@@ -94,7 +100,7 @@ def _env_actions(env_id: str, env_kwargs: dict[str, Any] | None) -> tuple[int, l
     try:
         space = env.action_space
         if not isinstance(space, spaces.Discrete):
-            raise ValueError(f"routines need a Discrete action space; {env_id} has {space}")
+            raise UsageError(f"routines need a Discrete action space; {env_id} has {space}")
         return int(space.n), _env_action_meanings(env)
     finally:
         env.close()
@@ -130,19 +136,19 @@ def load_routines(
         required: when set (`"--mode rapl"`), finding no routine is an error naming it.
 
     Raises:
-        ValueError: `num_routines` is negative, or the saved library was mined on another env
+        UsageError: `num_routines` is negative, or the saved library was mined on another env
             or holds actions the env does not have.
-        SystemExit: `required` and no routine was found.
+        UsageError: `required` and no routine was found.
     """
     if num_routines < 0:
-        raise ValueError(f"num_routines needs to be ≥ 0, actual value: {num_routines}")
+        raise UsageError(f"--num-routines needs to be ≥ 0, actual value: {num_routines}")
     if num_routines == 0:
         return None
     if library_path is not None:
         library = RoutineLibrary.load(library_path)
         mined_on = library.source.get("env_id")
         if not same_env(mined_on, env_id):
-            raise ValueError(
+            raise UsageError(
                 f"{library_path} was mined from a demo of {mined_on}, not {env_id}"
             )
         if demo is not None:
@@ -152,13 +158,13 @@ def load_routines(
         if library.action_meanings is not None and meanings is not None and list(
             library.action_meanings
         ) != list(meanings):
-            raise ValueError(
+            raise UsageError(
                 f"{library_path} has actions {list(library.action_meanings)}, "
                 f"{env_id} has {list(meanings)}: a library of another env"
             )
         bad = [r for r in library.routines if max(r) >= n]
         if bad:
-            raise ValueError(
+            raise UsageError(
                 f"{library_path}: routine {bad[0]} uses an action outside {env_id}'s "
                 f"Discrete({n})"
             )
@@ -196,7 +202,7 @@ def load_routines(
         where = (source or {}).get("path", "the demo")
     if len(library) == 0:
         if required is not None:
-            raise SystemExit(
+            raise UsageError(
                 f"{required} found no routine in {where} (the demo may be too short or too "
                 "varied); use a longer demo, a smaller --alpha, or no routines "
                 "(rapl_a2c.py --mode a2c, rapl_sqil.py --num-routines 0)"

@@ -16,6 +16,7 @@ name, with Gymnasium-style messages that name the flag and the bad value
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import math
@@ -32,9 +33,10 @@ import torch
 
 from routine_gym.atomic import atomic_write_bytes
 from routine_gym.checkpoint import CHECKPOINT_NAME, resume_settings, write_checkpoint
+from routine_gym.errors import UsageError
 from routine_gym.rng import rng_state, set_rng_state
 
-__all__ = ["Every", "Run", "check_args", "parse_args", "start_run"]
+__all__ = ["Every", "Run", "check_args", "check_env", "parse_args", "run_script", "start_run"]
 
 
 # -- the argument check ------------------------------------------------------------------------
@@ -100,7 +102,7 @@ def check_args(args: Any, extra: Iterable[tuple[str, bool, str]] = ()) -> None:
         extra: the script's own rules, as `(field, holds, what it needs)`.
 
     Raises:
-        ValueError: `--flag needs to be <domain>, actual value: <value>`.
+        UsageError: `--flag needs to be <domain>, actual value: <value>`.
 
     Example:
         >>> from dataclasses import dataclass
@@ -110,7 +112,7 @@ def check_args(args: Any, extra: Iterable[tuple[str, bool, str]] = ()) -> None:
         >>> check_args(Args())
         Traceback (most recent call last):
         ...
-        ValueError: --gamma needs to be in (0, 1], actual value: 1.5
+        routine_gym.errors.UsageError: --gamma needs to be in (0, 1], actual value: 1.5
     """
     for f in fields(args):
         if f.name not in DOMAINS:
@@ -121,23 +123,66 @@ def check_args(args: Any, extra: Iterable[tuple[str, bool, str]] = ()) -> None:
         test, needs = DOMAINS[f.name]
         bad_number = isinstance(value, float) and not math.isfinite(value)
         if bad_number or not test(value):
-            raise ValueError(f"{_flag(f.name)} needs to be {needs}, actual value: {value}")
+            raise UsageError(f"{_flag(f.name)} needs to be {needs}, actual value: {value}")
     for name, holds, needs in extra:
         if not holds:
-            raise ValueError(f"{_flag(name)} needs to be {needs}, "
+            raise UsageError(f"{_flag(name)} needs to be {needs}, "
                              f"actual value: {getattr(args, name)}")
 
 
 def parse_args(args_type: type, renamed: dict[str, str] | None = None,
                argv: Sequence[str] | None = None) -> Any:
-    """`tyro.cli(args_type)`, after refusing flags that were renamed, naming the new one."""
+    """`tyro.cli(args_type)`, after refusing flags that were renamed, naming the new one.
+
+    tyro's own errors (an unknown flag, a value of the wrong type) come back as a `UsageError`
+    of one line, the heart of tyro's message.
+    """
     import tyro
 
     argv = list(sys.argv[1:] if argv is None else argv)
     for old, new in (renamed or {}).items():
         if any(a == old or a.startswith(old + "=") for a in argv):
-            raise SystemExit(f"{old} was renamed: use {new}")
-    return tyro.cli(args_type, args=argv)
+            raise UsageError(f"{old} was renamed: use {new}")
+    captured = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(captured):
+            return tyro.cli(args_type, args=argv)
+    except SystemExit as exc:
+        if exc.code in (0, None):
+            raise
+        raise UsageError(_tyro_message(captured.getvalue()) + " (see --help)") from None
+
+
+def _tyro_message(box: str) -> str:
+    """The message lines of tyro's error box, up to its first rule, on one line."""
+    lines = []
+    for line in box.splitlines()[1:]:
+        text = line.strip().strip("│╭╰╮╯").strip()
+        if not text or set(text) <= set("─"):
+            break
+        lines.append(text)
+    return " ".join(lines) or "bad arguments"
+
+
+def run_script(main: Callable[[Any], Any], args_type: type,
+               renamed: dict[str, str] | None = None) -> None:
+    """A script's entry point: parse its flags and run `main`, reporting a user's mistakes
+    (`routine_gym.errors`) as one line on stderr with exit code 2; `--debug` (or
+    `ROUTINE_GYM_DEBUG=1`) shows their traceback instead. A bug keeps its traceback."""
+    from routine_gym.errors import debug_requested, expected_errors, one_line
+
+    argv = sys.argv[1:]
+    debug = debug_requested(argv)
+    script = os.path.basename(sys.argv[0])
+    try:
+        main(parse_args(args_type, renamed, argv))
+    except expected_errors() as exc:
+        for path in _NEW_FOLDERS:
+            _remove_failed_run(path)
+        if debug:
+            raise
+        print(f"{script}: error: {one_line(exc)}", file=sys.stderr)
+        raise SystemExit(2) from None
 
 
 # -- the run ----------------------------------------------------------------------------------
@@ -179,21 +224,45 @@ class Run:
     rng: np.random.Generator
     checkpoint: dict[str, Any] | None
     """The checkpoint `--resume` read (None for a new run)."""
+    budget: str = "total_timesteps"
+    """The `Args` field of the run's budget."""
+    saved_budget: int | None = None
+    """The budget the resumed checkpoint was saved with."""
 
     @property
     def checkpoint_path(self) -> str:
         return os.path.join(self.path, CHECKPOINT_NAME)
 
     def save_checkpoint(self, state: dict[str, Any]) -> None:
-        """Write `state` plus every RNG state and the `Args` atomically as the checkpoint."""
+        """Write `state` plus every RNG state and the `Args` atomically as the checkpoint.
+
+        A lower budget given on `--resume` (to go straight to evaluation) does not replace the
+        run's saved budget: a later `--resume` still trains to it.
+        """
+        settings = asdict(self.args)
+        if self.saved_budget is not None and settings[self.budget] < self.saved_budget:
+            settings[self.budget] = self.saved_budget
         write_checkpoint(
-            {**state, "rng": rng_state(self.rng), "args": json.dumps(asdict(self.args))},
+            {**state, "rng": rng_state(self.rng), "args": json.dumps(settings)},
             self.checkpoint_path,
         )
 
+    def restore(self, target: Any, key: str) -> None:
+        """`target.load_state_dict(checkpoint[key])`, refusing one of another shape by name."""
+        try:
+            target.load_state_dict(self.checkpoint[key])
+        except (RuntimeError, ValueError, KeyError, TypeError) as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise UsageError(f"--resume {self.args.resume}: its {key} does not fit this run "
+                             f"({first[:200]})") from None
+
     def restore_rng(self) -> None:
         """Put every RNG back where the resumed checkpoint left it."""
-        set_rng_state(self.checkpoint["rng"], self.rng)
+        try:
+            set_rng_state(self.checkpoint["rng"], self.rng)
+        except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+            raise UsageError(f"--resume {self.args.resume}: its RNG state is not one "
+                             f"routine-gym saved ({type(exc).__name__})") from None
 
     def save_model(self, model: torch.nn.Module | dict[str, torch.nn.Module]) -> str:
         """Save `model`'s weights (or each named model's) to `{run}/model.pt` atomically."""
@@ -224,17 +293,21 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
         extra_checks: the script's own argument rules (see `check_args`).
     """
     check_args(args, extra_checks)
+    saved_budget = None
     if args.resume:
         args, checkpoint, path = resume_settings(args, checkpoint_keys, script,
                                                  lower_budget=lower_budget, budget=budget)
+        saved_budget = json.loads(checkpoint["args"]).get(budget)
         name = os.path.basename(path)
+        check_env(args.env_id)
+        os.makedirs(path, exist_ok=True)
     else:
         checkpoint = None
+        check_env(args.env_id)
         mode = getattr(args, "mode", None)
         experiment = args.exp_name if mode is None else f"{args.exp_name}-{mode}"
-        name = f"{args.env_id.replace('/', '-')}__{experiment}__{args.seed}__{int(time.time())}"
-        path = os.path.join(args.run_dir, name)
-    os.makedirs(path, exist_ok=True)
+        name, path = _new_run_folder(
+            args.run_dir, f"{args.env_id.replace('/', '-')}__{experiment}__{args.seed}")
     from torch.utils.tensorboard import SummaryWriter
 
     writer = SummaryWriter(path)
@@ -251,4 +324,73 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
         torch.set_num_threads(args.torch_threads)
     device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
     return Run(args=args, name=name, path=path, writer=writer, device=device, rng=rng,
-               checkpoint=checkpoint)
+               checkpoint=checkpoint, budget=budget, saved_budget=saved_budget)
+
+
+#: Run folders this process made for new runs: `run_script` removes one a failed run leaves
+#: without a checkpoint or a result.
+_NEW_FOLDERS: list[str] = []
+
+
+def _new_run_folder(run_dir: str, stem: str) -> tuple[str, str]:
+    """`{run_dir}/{stem}__{time}`, made now; a second run in the same second gets `-2`, ..."""
+    os.makedirs(run_dir, exist_ok=True)
+    stamp = int(time.time())
+    for k in range(1, 10_000):
+        name = f"{stem}__{stamp}" + ("" if k == 1 else f"-{k}")
+        path = os.path.join(run_dir, name)
+        try:
+            os.mkdir(path)  # atomic: two runs never get the same folder
+        except FileExistsError:
+            continue
+        _NEW_FOLDERS.append(path)
+        return name, path
+    raise UsageError(f"--run-dir {run_dir}: no free run folder name for {stem}")
+
+
+def _remove_failed_run(path: str) -> None:
+    """Remove a new run's folder when it holds nothing but TensorBoard's first event file."""
+    if not os.path.isdir(path):
+        return
+    entries = os.listdir(path)
+    if all(e.startswith("events.out.tfevents.") or e == "routines.json" for e in entries):
+        import shutil
+
+        shutil.rmtree(path, ignore_errors=True)
+
+
+def check_env(env_id: str) -> None:
+    """Refuse, before any work, an env the scripts cannot handle: one Gymnasium does not know,
+    one whose actions are not `Discrete(n)` from 0, or whose observations are not a `Box`.
+
+    Raises:
+        UsageError: naming the env id and the problem (and the wrapper that would help).
+    """
+    import gymnasium as gym
+
+    from routine_gym.envs import env_spec
+    from routine_gym.envs.factory import make_primitive_env
+
+    try:
+        spec = env_spec(env_id)
+    except ImportError as exc:
+        raise UsageError(f"--env-id {env_id}: cannot import its module ({exc})") from None
+    if spec is None:
+        raise UsageError(f"--env-id {env_id}: Gymnasium does not know this env (a typo? for an "
+                         "env of your own package, use the module:EnvId form)")
+    env = make_primitive_env(env_id)
+    try:
+        actions, observations = env.action_space, env.observation_space
+    finally:
+        env.close()
+    if not isinstance(actions, gym.spaces.Discrete):
+        raise UsageError(f"--env-id {env_id} has the action space {actions}; routine-gym's "
+                         "scripts need Discrete(n) actions")
+    if int(actions.start) != 0:
+        raise UsageError(f"--env-id {env_id} has the action space {actions}, which starts at "
+                         f"{int(actions.start)}; routine-gym's scripts need Discrete(n) from 0 "
+                         "(wrap it so its actions start at 0)")
+    if not isinstance(observations, gym.spaces.Box):
+        raise UsageError(f"--env-id {env_id} has the observation space {observations}; "
+                         "routine-gym's networks take Box observations: register the env "
+                         "wrapped in gymnasium.wrappers.FlattenObservation")

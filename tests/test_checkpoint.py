@@ -22,7 +22,7 @@ def test_every_wrong_resume_path_names_the_path(tmp_path):
     with pytest.raises(FileNotFoundError, match=f"--resume {tmp_path}: no checkpoint at"):
         load_checkpoint(tmp_path, [], "test.py")
     (tmp_path / "notes.txt").write_text("not a checkpoint")
-    with pytest.raises(ValueError, match="notes.txt is not a checkpoint torch can read"):
+    with pytest.raises(ValueError, match="notes.txt is not a checkpoint routine-gym reads"):
         load_checkpoint(tmp_path / "notes.txt", [], "test.py")
     write_checkpoint({"model": {}}, tmp_path / "other.pt")
     with pytest.raises(ValueError, match="other.pt is not a checkpoint of test.py "
@@ -49,8 +49,7 @@ def test_resume_settings_keep_the_saved_run_and_apply_the_budget_rule(tmp_path):
 
     def resume(total_timesteps: int, **kwargs) -> Args:
         args, checkpoint, run_path = resume_settings(
-            Args(total_timesteps=total_timesteps, seed=99, resume=str(run)), ["step"], "x.py",
-            **kwargs)
+            Args(total_timesteps=total_timesteps, resume=str(run)), ["step"], "x.py", **kwargs)
         assert checkpoint["step"] == 200 and run_path == str(run)
         assert args.seed == 7 and args.resume == str(run / CHECKPOINT_NAME)  # saved settings
         return args
@@ -59,3 +58,6 @@ def test_resume_settings_keep_the_saved_run_and_apply_the_budget_rule(tmp_path):
     assert resume(500).total_timesteps == 500  # raised
     assert resume(250).total_timesteps == 300  # never lowered ...
     assert resume(250, lower_budget=True).total_timesteps == 250  # ... unless the script says
+    # A flag that contradicts the saved run is refused, not silently ignored.
+    with pytest.raises(ValueError, match="started with --seed 7, not 99; drop the flag"):
+        resume_settings(Args(seed=99, resume=str(run)), ["step"], "x.py")

@@ -174,7 +174,7 @@ def test_a_bad_resume_path_is_named(script, tmp_path):
         resume(tmp_path)  # a folder without a checkpoint
     (tmp_path / "notes.pt").write_text("not a checkpoint")
     with pytest.raises(ValueError, match=f"{re.escape(str(tmp_path / 'notes.pt'))} is not a "
-                                         "checkpoint torch can read"):
+                                         "checkpoint routine-gym reads"):
         resume(tmp_path / "notes.pt")
     torch.save({"model": {}, "step": 3}, tmp_path / "other.pt")
     with pytest.raises(ValueError, match=f"other.pt is not a checkpoint of {script}.py"):

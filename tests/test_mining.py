@@ -582,10 +582,11 @@ def test_mining_a_demo_carries_meanings_and_provenance():
 
 @pytest.mark.parametrize("name", ["random", "enumerate", "random-fetch", "repeat"])
 def test_ablations_mine_a_demo_too(name):
-    demo = FakeDemo([SMALL], {"env_id": "MiniQbert-v0", "action_meanings": list(MEANINGS)})
+    meanings = [*MEANINGS, "UPRIGHT", "UPLEFT"]  # SMALL uses 8 actions
+    demo = FakeDemo([SMALL], {"env_id": "MiniQbert-v0", "action_meanings": meanings})
     library = make_proposer(name, num_routines=2).mine(demo)
     assert library.source == {"env_id": "MiniQbert-v0"}
-    assert library.action_meanings == MEANINGS
+    assert library.action_meanings == tuple(meanings)
 
 
 # -- RoutineLibrary ---------------------------------------------------------------------------
@@ -629,9 +630,18 @@ def test_describe_shows_action_names():
     assert lines[1].endswith("UP UP RIGHT")
     assert "score=3.30" in lines[1] and "freq=3" in lines[1]
     assert lines[2].endswith("LEFT LEFT FIRE UP UP RIGHT")
-    # Without meanings, the ids; an action beyond the meanings is marked.
+    # Without meanings, the ids; an action beyond the meanings is refused, not shown as "?9".
     assert RoutineLibrary(routines=((2, 2, 3),)).describe().endswith("2 2 3")
-    assert RoutineLibrary(routines=((2, 9),), action_meanings=MEANINGS).name(0) == "UP ?9"
+    with pytest.raises(ValueError, match=r"routine 0 \[2, 9\] uses action 9, outside"):
+        RoutineLibrary(routines=((2, 9),), action_meanings=MEANINGS)
+
+
+@pytest.mark.parametrize("action", [2.7, "2", True, None])
+def test_a_routine_action_must_be_an_integer(action):
+    # 2.7 would otherwise be truncated into action 2, a different routine.
+    with pytest.raises(ValueError, match="routine 0 has a (non-integer|boolean) action"):
+        RoutineLibrary(routines=((1, action),))
+    assert RoutineLibrary(routines=((1, 2.0),)).routines == ((1, 2),)
 
 
 @pytest.mark.parametrize(

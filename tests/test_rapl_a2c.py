@@ -22,6 +22,7 @@ from script_loader import load_script
 import routine_gym  # noqa: F401  (registers MiniQbert, CoinRun and the ALE envs)
 from routine_gym.demo import DEMO_SUITE, Demo, record_agent_demo, replay, shipped_demo_path
 from routine_gym.envs.factory import default_env_kwargs
+from routine_gym.errors import UsageError
 from routine_gym.library import RoutineLibrary
 from routine_gym.loading import load_routines
 
@@ -233,9 +234,9 @@ def test_procgen_is_evaluated_on_unseen_levels(rapl_a2c):
 
 
 def test_rapl_without_a_demo_explains_how_to_record_one(rapl_a2c, tmp_path):
-    with pytest.raises(SystemExit) as excinfo:
+    with pytest.raises(UsageError) as excinfo:
         run(rapl_a2c, tmp_path, env_id="CartPole-v1", mode="rapl")
-    message = str(excinfo.value.code)
+    message = str(excinfo.value)
     assert "no demo of CartPole-v1 ships in demos/" in message
     assert "routine-gym record CartPole-v1" in message
     assert "--demo" in message
@@ -249,11 +250,11 @@ def test_a_demo_that_yields_no_routine_is_a_clear_error(rapl_a2c, tmp_path):
         meta={"env_id": "CartPole-v1", "num_actions": 2, "seeds": [0]},
     )
     demo.save(tmp_path / "short.npz")
-    with pytest.raises(SystemExit) as excinfo:
+    with pytest.raises(UsageError) as excinfo:
         run(rapl_a2c, tmp_path / "runs", env_id="CartPole-v1", mode="macro",
             demo=str(tmp_path / "short.npz"))
-    assert "no routine" in str(excinfo.value.code)
-    assert "--mode a2c" in str(excinfo.value.code)
+    assert "no routine" in str(excinfo.value)
+    assert "--mode a2c" in str(excinfo.value)
 
 
 def test_a_library_mined_for_another_env_is_refused(rapl_a2c, tmp_path, repo_root):

@@ -1,0 +1,47 @@
+"""Errors a user can make, and how every script and CLI command reports them.
+
+`UsageError` is a user's mistake (a bad file, a bad flag or value, an env the scripts cannot
+handle, a bad checkpoint). It subclasses `ValueError`, so library callers that catch
+`ValueError` still do. The scripts in `algos/` (through `routine_gym.run.run_script`) and the
+`routine-gym` command print it as one line on stderr, `SCRIPT: error: MESSAGE`, and exit with
+code 2, without a traceback; so do Gymnasium's own errors (an unknown env id) and a missing
+file. `--debug` (or `ROUTINE_GYM_DEBUG=1` in the environment) shows the traceback instead.
+Anything else is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+__all__ = ["UsageError", "debug_requested", "expected_errors", "one_line"]
+
+#: The environment variable that turns one-line errors back into tracebacks.
+DEBUG_VARIABLE = "ROUTINE_GYM_DEBUG"
+
+
+class UsageError(ValueError):
+    """A user's mistake, reported as one line naming the file, flag or value."""
+
+
+def one_line(exc: BaseException) -> str:
+    """The exception's message on one line (continuation lines joined with "; ")."""
+    text = str(exc) or type(exc).__name__
+    return "; ".join(part.strip() for part in text.splitlines() if part.strip())
+
+
+def expected_errors() -> tuple[type[BaseException], ...]:
+    """The exception types reported as one line: ours, a missing file, Gymnasium's."""
+    kinds: list[type[BaseException]] = [UsageError, FileNotFoundError]
+    gym_error = sys.modules.get("gymnasium.error")
+    if gym_error is not None:
+        kinds.append(gym_error.Error)
+    return tuple(kinds)
+
+
+def debug_requested(argv: list[str]) -> bool:
+    """Whether `--debug` is in `argv` (it is removed) or `ROUTINE_GYM_DEBUG` is set."""
+    found = "--debug" in argv
+    while "--debug" in argv:
+        argv.remove("--debug")
+    return found or os.environ.get(DEBUG_VARIABLE, "") not in ("", "0")
