@@ -224,6 +224,9 @@ def _resolve_policy(spec: str, env, noise: float = 0.0, seed: int = 0) -> Callab
 def cmd_record(args: argparse.Namespace) -> int:
     import gymnasium as gym
 
+    from routine_gym.atomic import check_writable
+
+    check_writable(args.out, "--out")  # before recording: no run for an output that fails
     from routine_gym.demo import record_agent_demo
     from routine_gym.envs.factory import default_env_kwargs
 
@@ -248,8 +251,10 @@ def cmd_record(args: argparse.Namespace) -> int:
 
 
 def cmd_play(args: argparse.Namespace) -> int:
+    from routine_gym.atomic import check_writable
     from routine_gym.demo import record_human_demo
 
+    check_writable(args.out, "--out")  # before anyone plays a session for nothing
     try:
         demo = record_human_demo(
             args.env_id,
@@ -289,7 +294,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="routine-gym",
         description="Mine action routines from a demonstration, inspect them, and record or "
-        "replay demonstrations.",
+        "replay demonstrations. Errors are one line with exit code 2; --debug (anywhere on the "
+        "command line) or ROUTINE_GYM_DEBUG=1 shows their traceback.",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
@@ -380,18 +386,24 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from routine_gym.errors import debug_requested, one_line
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = debug_requested(argv)
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return args.func(args)
     except (CLIError, ValueError, TypeError, FileNotFoundError) as exc:
-        parser.exit(2, f"routine-gym: error: {exc}\n")
+        if debug:
+            raise
+        parser.exit(2, f"routine-gym: error: {one_line(exc)}\n")
     except Exception as exc:
         # gymnasium's own errors (an unknown env id, ...) are user errors too; if gymnasium was
         # never imported, the exception cannot be one of them.
         gym_error = sys.modules.get("gymnasium.error")
-        if gym_error is not None and isinstance(exc, gym_error.Error):
-            parser.exit(2, f"routine-gym: error: {exc}\n")
+        if gym_error is not None and isinstance(exc, gym_error.Error) and not debug:
+            parser.exit(2, f"routine-gym: error: {one_line(exc)}\n")
         raise
     except KeyboardInterrupt:
         return 130

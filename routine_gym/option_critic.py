@@ -82,7 +82,8 @@ def termination_advantage(q_next: torch.Tensor, options: torch.Tensor,
 
     Example:
         >>> q_next = torch.tensor([[1.0, 3.0], [2.0, 0.0]])
-        >>> termination_advantage(q_next, torch.tensor([0, 0]), 0.01).round(decimals=2).tolist()
+        >>> advantage = termination_advantage(q_next, torch.tensor([0, 0]), 0.01)
+        >>> [round(x, 2) for x in advantage.tolist()]
         [-1.99, 0.01]
     """
     q_option = q_next.gather(1, options[:, None]).squeeze(1)

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from routine_gym.atomic import atomic_write_bytes
+from routine_gym.atomic import atomic_write_bytes, check_writable
 from routine_gym.checkpoint import CHECKPOINT_NAME, resume_settings, write_checkpoint
 from routine_gym.errors import UsageError
 from routine_gym.rng import rng_state, set_rng_state
@@ -293,6 +293,8 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
         extra_checks: the script's own argument rules (see `check_args`).
     """
     check_args(args, extra_checks)
+    if getattr(args, "record_demo", None):
+        check_writable(args.record_demo, "--record-demo")  # before training, not after
     saved_budget = None
     if args.resume:
         args, checkpoint, path = resume_settings(args, checkpoint_keys, script,

@@ -90,6 +90,11 @@ _STEP_ARRAYS = ("actions", "rewards", "terminated", "truncated")
 _REQUIRED_ARRAYS = (*_STEP_ARRAYS, "episode_lengths", "meta")
 _OBS_ARRAYS = ("observations", "final_observations")
 _V2_ARRAYS = ("decisions",)
+#: Size limits of a demo file's members once uncompressed (a small file can expand without
+#: bound): the JSON `meta`, each per-step or per-episode array, and the observations.
+MAX_META_BYTES = 1 << 20
+MAX_STEPS = 10**8
+MAX_OBSERVATION_BYTES = 16 << 30
 
 
 
@@ -601,6 +606,7 @@ class Demo:
                 f"{path}: not a routine-gym demo: not an .npz (zip) archive; "
                 "the file may be truncated or corrupt"
             )
+        _check_member_sizes(path)
         try:
             with np.load(path, allow_pickle=False) as data:
                 names = set(data.files)
@@ -657,6 +663,29 @@ def _read_array(data: Any, name: str) -> np.ndarray:
     return arr
 
 
+def _check_member_sizes(path: str) -> None:
+    """Refuse a demo whose members expand beyond the documented limits (`MAX_*`)."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            members = archive.infolist()
+    except (zipfile.BadZipFile, OSError) as exc:
+        raise ValueError(f"{path}: corrupt demo file ({type(exc).__name__}: {exc})") from exc
+    for member in members:
+        name = member.filename.removesuffix(".npy")
+        if name == "meta":
+            limit, what = MAX_META_BYTES, f"{MAX_META_BYTES >> 20} MiB of metadata"
+        elif name in _OBS_ARRAYS:
+            limit = MAX_OBSERVATION_BYTES
+            what = f"{MAX_OBSERVATION_BYTES >> 30} GiB of observations"
+        else:
+            limit, what = 8 * MAX_STEPS + 4096, f"{MAX_STEPS:,} steps"
+        if member.file_size > limit:
+            raise ValueError(
+                f"{path}: its {name!r} expands to {member.file_size:,} bytes, over the limit of "
+                f"{what} a demo may hold"
+            )
+
+
 def demo_file_version(path: str | os.PathLike) -> int:
     """The format version a demo file was written in (1 or 2), read from its `meta` alone.
 
@@ -666,6 +695,7 @@ def demo_file_version(path: str | os.PathLike) -> int:
     path = os.fspath(path)
     if not zipfile.is_zipfile(path):
         raise ValueError(f"{path}: not a routine-gym demo: not an .npz (zip) archive")
+    _check_member_sizes(path)
     try:
         with np.load(path, allow_pickle=False) as data:
             if "meta" not in data.files:
