@@ -86,8 +86,8 @@ RESUMABLE_CHANGES = frozenset({
 
 
 def resume_settings(args: Any, keys: Iterable[str], script: str, *,
-                    lower_budget: bool = False,
-                    budget: str = "total_timesteps") -> tuple[Any, dict[str, Any], str]:
+                    lower_budget: bool = False, budget: str = "total_timesteps",
+                    given: set[str] | None = None) -> tuple[Any, dict[str, Any], str]:
     """For `--resume`: the run's saved `Args`, its checkpoint and its run folder.
 
     The run continues as it was configured; a budget (`--total-timesteps`, or the field named
@@ -96,8 +96,10 @@ def resume_settings(args: Any, keys: Iterable[str], script: str, *,
     one is taken as it is, so a script can go straight to evaluation (the checkpoint keeps the
     saved budget). A bare `--resume` keeps the saved budget. Settings of how the run is run
     and reported (`RESUMABLE_CHANGES`) may change; any other flag given with a value that
-    contradicts the saved run (another env, mode, number of envs) is refused. The run folder
-    is the checkpoint's own, wherever the script is run from.
+    contradicts the saved run (another env, mode, number of envs) is refused. `given` names
+    the fields set on the command line (without it, a field counts as given when it differs
+    from its default). The run folder is the checkpoint's own, wherever the script is run
+    from.
     """
     path, checkpoint = load_checkpoint(args.resume, keys, script)
     try:
@@ -113,18 +115,21 @@ def resume_settings(args: Any, keys: Iterable[str], script: str, *,
                          f"know ({', '.join(unknown)}): a checkpoint of another version?")
     saved = type(args)(**saved_fields)
     defaults = {f.name: f.default for f in fields(args)}
+    def is_given(name: str) -> bool:
+        return name in given if given is not None else getattr(args, name) != defaults[name]
+
     for name in sorted(known - RESUMABLE_CHANGES - {budget}):
-        given = getattr(args, name)
-        if given != defaults[name] and given != getattr(saved, name):
+        value = getattr(args, name)
+        if is_given(name) and value != getattr(saved, name):
             raise UsageError(
                 f"--resume {path}: the run was started with --{name.replace('_', '-')} "
-                f"{getattr(saved, name)}, not {given}; drop the flag or start a new run"
+                f"{getattr(saved, name)}, not {value}; drop the flag or start a new run"
             )
     for name in RESUMABLE_CHANGES & known - {"resume"}:
-        if getattr(args, name) != defaults[name]:
+        if is_given(name):
             setattr(saved, name, getattr(args, name))
-    given, before = getattr(args, budget), getattr(saved, budget)
-    if given != defaults[budget]:
-        setattr(saved, budget, given if lower_budget else max(before, given))
+    asked, before = getattr(args, budget), getattr(saved, budget)
+    if is_given(budget):
+        setattr(saved, budget, asked if lower_budget else max(before, asked))
     saved.resume = path
     return saved, checkpoint, os.path.dirname(os.path.abspath(path))

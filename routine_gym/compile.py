@@ -88,9 +88,13 @@ __all__ = [
     "CompILEConfig",
     "CompILEOptions",
     "OptionActionWrapper",
+    "OptionSummary",
     "Segmentation",
     "boundary_mask",
     "boundary_scores",
+    "compile_from_state",
+    "compile_state",
+    "describe_options",
     "fit_options",
     "kl_boundary",
     "kl_latent_uniform",
@@ -693,8 +697,8 @@ def fit_options(
         nn.utils.clip_grad_norm_(model.parameters(), 10.0)
         optimizer.step()
         if step % 100 == 0 or step == steps:
-            log.append({"step": step, "policy_loss": float(policy_loss),
-                        "termination_loss": float(termination_loss)})
+            log.append({"step": step, "policy_loss": policy_loss.item(),
+                        "termination_loss": termination_loss.item()})
     model.eval()
     return log
 
@@ -1041,9 +1045,9 @@ def option_summary(model: CompILE, states: np.ndarray, actions: np.ndarray,
         seg_lengths = segmentation.lengths[chosen]
         out.append(OptionSummary(
             code=int(code), segments=len(chosen),
-            min_length=int(seg_lengths.min(initial=0)),
+            min_length=int(seg_lengths.min()) if len(chosen) else 0,
             mean_length=float(seg_lengths.mean()) if len(chosen) else 0.0,
-            max_length=int(seg_lengths.max(initial=0)),
+            max_length=int(seg_lengths.max()) if len(chosen) else 0,
             demo_actions=demo_strings.most_common(top),
             decoded_actions=decoded_strings.most_common(top),
             decoder_accuracy=correct / max(total, 1)))

@@ -140,6 +140,8 @@ def parse_args(args_type: type, renamed: dict[str, str] | None = None,
     import tyro
 
     argv = list(sys.argv[1:] if argv is None else argv)
+    _GIVEN_FLAGS.clear()
+    _GIVEN_FLAGS.update(a[2:].split("=")[0].replace("-", "_") for a in argv if a.startswith("--"))
     for old, new in (renamed or {}).items():
         if any(a == old or a.startswith(old + "=") for a in argv):
             raise UsageError(f"{old} was renamed: use {new}")
@@ -151,6 +153,11 @@ def parse_args(args_type: type, renamed: dict[str, str] | None = None,
         if exc.code in (0, None):
             raise
         raise UsageError(_tyro_message(captured.getvalue()) + " (see --help)") from None
+
+
+#: The `Args` fields the command line set (`parse_args`), so `--resume` can tell a flag given
+#: with its default value from one not given. Empty when `main` is called from Python.
+_GIVEN_FLAGS: set[str] = set()
 
 
 def _tyro_message(box: str) -> str:
@@ -177,8 +184,8 @@ def run_script(main: Callable[[Any], Any], args_type: type,
     try:
         main(parse_args(args_type, renamed, argv))
     except expected_errors() as exc:
-        for path in _NEW_FOLDERS:
-            _remove_failed_run(path)
+        for run in _NEW_RUNS:
+            _remove_failed_run(run)
         if debug:
             raise
         print(f"{script}: error: {one_line(exc)}", file=sys.stderr)
@@ -298,7 +305,8 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
     saved_budget = None
     if args.resume:
         args, checkpoint, path = resume_settings(args, checkpoint_keys, script,
-                                                 lower_budget=lower_budget, budget=budget)
+                                                 lower_budget=lower_budget, budget=budget,
+                                                 given=set(_GIVEN_FLAGS) or None)
         saved_budget = json.loads(checkpoint["args"]).get(budget)
         name = os.path.basename(path)
         check_env(args.env_id)
@@ -325,13 +333,16 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
     if args.torch_threads > 0:
         torch.set_num_threads(args.torch_threads)
     device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
-    return Run(args=args, name=name, path=path, writer=writer, device=device, rng=rng,
-               checkpoint=checkpoint, budget=budget, saved_budget=saved_budget)
+    run = Run(args=args, name=name, path=path, writer=writer, device=device, rng=rng,
+              checkpoint=checkpoint, budget=budget, saved_budget=saved_budget)
+    if checkpoint is None:
+        _NEW_RUNS.append(run)
+    return run
 
 
-#: Run folders this process made for new runs: `run_script` removes one a failed run leaves
-#: without a checkpoint or a result.
-_NEW_FOLDERS: list[str] = []
+#: The new runs this process started: `run_script` removes the folder of one that failed
+#: before it had a checkpoint or a result.
+_NEW_RUNS: list[Run] = []
 
 
 def _new_run_folder(run_dir: str, stem: str) -> tuple[str, str]:
@@ -345,13 +356,14 @@ def _new_run_folder(run_dir: str, stem: str) -> tuple[str, str]:
             os.mkdir(path)  # atomic: two runs never get the same folder
         except FileExistsError:
             continue
-        _NEW_FOLDERS.append(path)
         return name, path
     raise UsageError(f"--run-dir {run_dir}: no free run folder name for {stem}")
 
 
-def _remove_failed_run(path: str) -> None:
+def _remove_failed_run(run: Run) -> None:
     """Remove a new run's folder when it holds nothing but TensorBoard's first event file."""
+    run.writer.close()
+    path = run.path
     if not os.path.isdir(path):
         return
     entries = os.listdir(path)
