@@ -57,6 +57,7 @@ from routine_gym.returns import (
     routine_reward_and_discount,
 )
 from routine_gym.run import Every, run_script, start_run
+from routine_gym.wrapper import merge_final
 
 
 @dataclass
@@ -189,22 +190,6 @@ def eval_env_kwargs(args: Args) -> dict:
     return profile_for(args.env_id).level_kwargs(
         args.num_levels, args.start_level, args.distribution_mode, args.eval_distribution_mode,
         training=False)
-
-
-def merge_final(info: dict, key: str, done: np.ndarray) -> np.ndarray:
-    """`info[key]` per env, taken from `final_info` for envs whose episode just ended.
-
-    With same-step autoreset, the step that ends an episode returns the reset's info, and the
-    ended step's info moves to `info["final_info"]`.
-    """
-    value = info[key].copy() if key in info else None
-    if done.any():
-        final = info["final_info"]
-        mask = final[f"_{key}"]
-        if value is None:
-            value = np.zeros_like(final[key])
-        value[mask] = final[key][mask]
-    return value
 
 
 def main(args: Args) -> None:

@@ -21,7 +21,7 @@ from gymnasium.vector.utils import concatenate, create_empty_array
 
 from routine_gym.library import RoutineLibrary, routine_name
 
-__all__ = ["RoutineActionWrapper"]
+__all__ = ["RoutineActionWrapper", "merge_final"]
 
 #: The action stored in the padding entries of `info["routine_actions"]`; never a valid action.
 PAD_ACTION = -1
@@ -350,3 +350,26 @@ def _zero_observation(space: spaces.Space) -> Any:
         f"MultiDiscrete, MultiBinary, Dict and Tuple, actual space: {space!r}; "
         "pass record_observations=False"
     )
+
+
+def merge_final(info: dict, key: str, done: np.ndarray) -> np.ndarray:
+    """`info[key]` of a vector env per env, from `final_info` for envs whose episode just ended.
+
+    With same-step autoreset the step that ends an episode returns the reset's info, and the
+    ended step's info (the routine it ran) moves to `info["final_info"]`.
+
+    Example:
+        >>> info = {"routine_length": np.array([2, 0]), "_routine_length": np.array([True, False]),
+        ...         "final_info": {"routine_length": np.array([0, 3]),
+        ...                        "_routine_length": np.array([False, True])}}
+        >>> merge_final(info, "routine_length", np.array([False, True])).tolist()
+        [2, 3]
+    """
+    value = info[key].copy() if key in info else None
+    if done.any():
+        final = info["final_info"]
+        mask = final[f"_{key}"]
+        if value is None:
+            value = np.zeros_like(final[key])
+        value[mask] = final[key][mask]
+    return value
