@@ -234,8 +234,9 @@ def main(args: Args) -> None:
     max_len = max(library.lengths) if library is not None else 1
 
     agent = Agent(args.env_id, envs.single_observation_space, num_actions).to(device)
+    # foreach: one kernel per step for all tensors instead of a loop (same arithmetic)
     optimizer = torch.optim.RMSprop(agent.parameters(), lr=args.learning_rate,
-                                    alpha=args.rmsprop_alpha, eps=args.rmsprop_eps)
+                                    alpha=args.rmsprop_alpha, eps=args.rmsprop_eps, foreach=True)
 
     # Rollout storage, time-major: [decision, env] and [decision, step in routine, env].
     n, e = args.num_steps, args.num_envs
@@ -315,7 +316,7 @@ def main(args: Args) -> None:
 
             global_step += int(lengths[step].sum())
             decisions += e
-            np.add.at(routine_counts, action, 1)
+            routine_counts += np.bincount(action, minlength=num_actions)
             if done.any() and "episode" in info.get("final_info", {}):
                 final = info["final_info"]
                 for i in np.flatnonzero(final["_episode"]):

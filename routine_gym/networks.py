@@ -113,7 +113,9 @@ class ObservationEncoder(nn.Module):
         self.torso, self.num_features = make_torso(env_id, self.obs_shape)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        x = obs.float() / self.scale
+        x = obs.float()
+        if self.scale != 1.0:  # float observations (MinAtar, flat vectors) go in as they are
+            x = x / self.scale
         if self.is_image:
             if x.dim() == 3:  # (B, H, W) grey images
                 x = x.unsqueeze(1)
