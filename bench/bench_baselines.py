@@ -54,7 +54,7 @@ def run_one(env_id: str, method: str, seed: int, args, root: Path) -> dict:
     done = sorted(run_dir.glob("*/eval.json"))
     record = {"env_id": env_id, "method": method, "seed": seed}
     if done:
-        return {**record, **json.loads(done[-1].read_text()), "skipped": True}
+        return {**json.loads(done[-1].read_text()), **record, "skipped": True}
     checkpoints = sorted(run_dir.glob("*/checkpoint.pt"))
     if checkpoints:
         cmd = [sys.executable, str(REPO / "algos" / f"{script}.py"), "--resume",
@@ -72,7 +72,7 @@ def run_one(env_id: str, method: str, seed: int, args, root: Path) -> dict:
     if proc.returncode != 0 or not done:
         last = (proc.stderr.strip().splitlines() or ["(no output)"])[-1]
         return {**record, "error": last}
-    return {**record, **json.loads(done[-1].read_text())}
+    return {**json.loads(done[-1].read_text()), **record}
 
 
 def render(records: list[dict], randoms: dict[str, dict], args, command: str,
