@@ -6,6 +6,7 @@ import glob
 import os
 import warnings
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -132,3 +133,28 @@ def test_mining_a_shipped_demo_is_mining_its_decision_segments(path):
             first = int(offsets[e]) + t
             assert tuple(demo.actions[first : first + len(routine)]) == routine
             assert demo.decisions[first : first + len(routine)].all()
+
+
+MINATAR = [env_id for env_id in DEMO_SUITE if env_family(env_id) == "minatar"]
+
+
+@pytest.mark.parametrize("env_id", MINATAR)
+def test_minatar_demos_come_from_5m_step_experts_far_above_random(env_id):
+    # MinAtar's own budget is 5M steps; the demo scores at least 5× the random policy's mean
+    # and at least 5 points above it (the random policy over 30 episodes, seeds 0–29).
+    demo = Demo.load(shipped_demo_path(env_id))
+    assert demo.meta["trained_steps"] >= 5_000_000
+    assert demo.meta["mode"] == "a2c" and demo.decisions.all()
+    env = gym.make(env_id)
+    env.action_space.seed(0)
+    scores = []
+    for episode in range(30):
+        env.reset(seed=episode)
+        score, done = 0.0, False
+        while not done:
+            _, reward, terminated, truncated, _ = env.step(env.action_space.sample())
+            score += reward
+            done = terminated or truncated
+        scores.append(score)
+    random_mean = float(np.mean(scores))
+    assert demo.score >= 5 * random_mean and demo.score >= random_mean + 5

@@ -16,8 +16,9 @@ if not os.path.isdir(DEMOS_DIR):
     DEMOS_DIR = os.path.join(os.path.dirname(_PACKAGE_DIR), "demos")
 
 
-#: The demonstration suite shipped in `demos/`: the paper's Atari games and CoinRun, one
-#: trained agent's demo each. `routine-gym show-demos` lists it; the scripts default to it.
+#: The demonstration suite shipped in `demos/`: the paper's Atari games, CoinRun and MinAtar's
+#: five games, one trained agent's demo each. `routine-gym show-demos` lists it; the scripts
+#: default to it.
 DEMO_SUITE: tuple[str, ...] = (
     "ALE/Qbert-v5",
     "ALE/Breakout-v5",
@@ -26,6 +27,11 @@ DEMO_SUITE: tuple[str, ...] = (
     "ALE/Seaquest-v5",
     "ALE/MsPacman-v5",
     "procgen/CoinRun-v0",
+    "MinAtar/Asterix-v1",
+    "MinAtar/Breakout-v1",
+    "MinAtar/Freeway-v1",
+    "MinAtar/Seaquest-v1",
+    "MinAtar/SpaceInvaders-v1",
 )
 
 
