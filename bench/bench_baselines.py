@@ -55,6 +55,8 @@ def run_one(env_id: str, method: str, seed: int, args, root: Path) -> dict:
     record = {"env_id": env_id, "method": method, "seed": seed}
     if done:
         return {**json.loads(done[-1].read_text()), **record, "skipped": True}
+    if args.report_only:
+        return {**record, "error": "not run yet (the sweep was stopped before it)"}
     checkpoints = sorted(run_dir.glob("*/checkpoint.pt"))
     if checkpoints:
         cmd = [sys.executable, str(REPO / "algos" / f"{script}.py"), "--resume",
@@ -95,8 +97,10 @@ def render(records: list[dict], randoms: dict[str, dict], args, command: str,
             good = [r for r in rows if "error" not in r]
             returns = [r["mean_return"] for r in good]
             cell = (f"{np.mean(returns):.2f} ± {np.std(returns, ddof=1):.2f}"
-                    if len(returns) > 1 else f"{returns[0]:.2f}" if returns else "FAILED")
-            seeds = ", ".join(f"{r['mean_return']:.2f}" if "error" not in r else "FAILED"
+                    if len(returns) > 1 else f"{returns[0]:.2f}" if returns else "not run")
+            if 0 < len(returns) < len(rows):
+                cell += f" ({len(returns)} of {len(rows)} seeds)"
+            seeds = ", ".join(f"{r['mean_return']:.2f}" if "error" not in r else "–"
                               for r in rows)
             walls = [r["seconds"] for r in good if "seconds" in r]
             wall = f"{np.mean(walls):.0f} s" if walls else "–"
@@ -105,7 +109,7 @@ def render(records: list[dict], randoms: dict[str, dict], args, command: str,
                          f"{random['mean']:.2f} ± {random['std']:.2f} | {wall} |")
     failures = [r for r in records if "error" in r]
     if failures:
-        lines += ["", "Failed runs:", ""]
+        lines += ["", "Runs without a result:", ""]
         lines += [f"- {r['env_id']} {r['method']} seed {r['seed']}: {r['error']}"
                   for r in failures]
     lines += ["", "## Machine", ""] + [f"- {k}: {v}" for k, v in info.items()]
@@ -121,6 +125,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--eval-episodes", type=int, default=30)
     parser.add_argument("--checkpoint-every", type=int, default=100_000)
     parser.add_argument("--jobs", type=int, default=2, help="runs at a time")
+    parser.add_argument("--report-only", action="store_true",
+                        help="run nothing: report the runs that have finished")
     parser.add_argument("--run-dir", type=Path, default=Path("runs/bench_baselines"))
     parser.add_argument("--out", type=Path,
                         default=REPO / "bench" / "results" / "baselines_minatar.md")
