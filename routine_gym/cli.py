@@ -200,6 +200,7 @@ def _resolve_policy(spec: str, env, noise: float = 0.0, seed: int = 0) -> Callab
     """`random`, `expert` (MiniQbert's scripted expert) or `module:function`."""
     if spec == "random":
         space = env.action_space
+        space.seed(seed)  # the same --seed records the same demo
         return lambda obs: int(space.sample())
     if spec == "expert":
         from routine_gym.envs import profile_for

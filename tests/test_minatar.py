@@ -99,7 +99,8 @@ def breakout_demo(tmp_path_factory) -> str:
     path = tmp_path_factory.mktemp("minatar") / "breakout.npz"
     proc = subprocess.run(
         [sys.executable, "-m", "routine_gym.cli", "record", "MinAtar/Breakout-v1",
-         "--policy", "random", "--episodes", "5", "--seed", "0", "--out", str(path)],
+         "--policy", "random", "--episodes", "10", "--keep", "all", "--seed", "0",
+         "--out", str(path)],
         capture_output=True, text=True, timeout=120,
     )
     assert proc.returncode == 0, proc.stderr
