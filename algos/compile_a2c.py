@@ -70,7 +70,6 @@ from routine_gym.compile import (
     segment,
     train_compile,
 )
-from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_env
 from routine_gym.errors import UsageError
 from routine_gym.evaluation import evaluate_policy, save_evaluation
@@ -78,7 +77,7 @@ from routine_gym.imitation.agent_view import agent_view_states, decision_steps
 from routine_gym.loading import load_demo
 from routine_gym.networks import ObservationEncoder, layer_init
 from routine_gym.returns import decision_returns, macro_reward_and_discount
-from routine_gym.run import Every, run_script, start_run
+from routine_gym.run import Every, eval_env_kwargs, run_script, start_run, train_env_kwargs
 from routine_gym.wrapper import merge_final
 
 
@@ -211,20 +210,6 @@ def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
     checks.append(("num_options", args.num_options <= args.compile_latents,
                    "at most --compile-latents"))
     return checks
-
-
-def train_env_kwargs(args: Args) -> dict:
-    """The training levels (Procgen); other envs have none."""
-    return profile_for(args.env_id).level_kwargs(
-        args.num_levels, args.start_level, args.distribution_mode, args.eval_distribution_mode,
-        training=True)
-
-
-def eval_env_kwargs(args: Args) -> dict:
-    """Procgen is evaluated on levels never trained on; other envs as in training."""
-    return profile_for(args.env_id).level_kwargs(
-        args.num_levels, args.start_level, args.distribution_mode, args.eval_distribution_mode,
-        training=False)
 
 
 def learn_options(args: Args, demo, obs_space: gym.spaces.Box, num_actions: int,

@@ -38,7 +38,6 @@ import torch.nn as nn
 from torch.distributions.categorical import Categorical
 
 import routine_gym
-from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_env
 from routine_gym.evaluation import evaluate_policy, save_evaluation
 from routine_gym.networks import ObservationEncoder, layer_init
@@ -48,7 +47,7 @@ from routine_gym.option_critic import (
     termination_advantage,
     value_upon_arrival,
 )
-from routine_gym.run import Every, run_script, start_run
+from routine_gym.run import Every, eval_env_kwargs, run_script, start_run, train_env_kwargs
 
 
 @dataclass
@@ -143,20 +142,6 @@ class Agent(nn.Module):
         hidden = self.encoder(obs)
         logits = self.policy_head(hidden).view(-1, self.num_options, self.num_actions)
         return self.q_head(hidden), logits, torch.sigmoid(self.termination_head(hidden))
-
-
-def train_env_kwargs(args: Args) -> dict:
-    """The training levels (Procgen); other envs have none."""
-    return profile_for(args.env_id).level_kwargs(
-        args.num_levels, args.start_level, args.distribution_mode, args.eval_distribution_mode,
-        training=True)
-
-
-def eval_env_kwargs(args: Args) -> dict:
-    """Procgen is evaluated on levels never trained on; other envs as in training."""
-    return profile_for(args.env_id).level_kwargs(
-        args.num_levels, args.start_level, args.distribution_mode, args.eval_distribution_mode,
-        training=False)
 
 
 #: What a checkpoint of this script holds (`--resume` checks for each).

@@ -38,7 +38,6 @@ from torch.distributions.categorical import Categorical
 
 import routine_gym
 from routine_gym.demo import record_agent_demo
-from routine_gym.envs import profile_for
 from routine_gym.envs.factory import (
     default_env_kwargs,
     make_env,
@@ -56,7 +55,7 @@ from routine_gym.returns import (
     primitive_returns,
     routine_reward_and_discount,
 )
-from routine_gym.run import Every, run_script, start_run
+from routine_gym.run import Every, eval_env_kwargs, run_script, start_run, train_env_kwargs
 from routine_gym.wrapper import merge_final
 
 
@@ -176,20 +175,6 @@ class Agent(nn.Module):
 
 #: What a checkpoint of this script holds (`--resume` checks for each).
 CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "rng", "args", "library")
-
-
-def train_env_kwargs(args: Args) -> dict:
-    """The training levels (Procgen); other envs have none."""
-    return profile_for(args.env_id).level_kwargs(
-        args.num_levels, args.start_level, args.distribution_mode, args.eval_distribution_mode,
-        training=True)
-
-
-def eval_env_kwargs(args: Args) -> dict:
-    """Procgen is evaluated on levels never trained on; other envs as in training."""
-    return profile_for(args.env_id).level_kwargs(
-        args.num_levels, args.start_level, args.distribution_mode, args.eval_distribution_mode,
-        training=False)
 
 
 def main(args: Args) -> None:

@@ -36,7 +36,17 @@ from routine_gym.checkpoint import CHECKPOINT_NAME, resume_settings, write_check
 from routine_gym.errors import UsageError
 from routine_gym.rng import rng_state, set_rng_state
 
-__all__ = ["Every", "Run", "check_args", "check_env", "parse_args", "run_script", "start_run"]
+__all__ = [
+    "Every",
+    "Run",
+    "check_args",
+    "check_env",
+    "eval_env_kwargs",
+    "parse_args",
+    "run_script",
+    "start_run",
+    "train_env_kwargs",
+]
 
 
 # -- the argument check ------------------------------------------------------------------------
@@ -411,3 +421,22 @@ def check_env(env_id: str) -> None:
         raise UsageError(f"--env-id {env_id} has the observation space {observations}; "
                          "routine-gym's networks take Box observations: register the env "
                          "wrapped in gymnasium.wrappers.FlattenObservation")
+
+
+def train_env_kwargs(args: Any) -> dict[str, Any]:
+    """The training levels of `args.env_id` (Procgen) from the script's level flags
+    (`num_levels`, `start_level`, `distribution_mode`); other families have none."""
+    from routine_gym.envs import profile_for
+
+    return profile_for(args.env_id).level_kwargs(
+        args.num_levels, args.start_level, args.distribution_mode, args.eval_distribution_mode,
+        training=True)
+
+
+def eval_env_kwargs(args: Any) -> dict[str, Any]:
+    """The evaluation levels: Procgen's levels never trained on; other envs as in training."""
+    from routine_gym.envs import profile_for
+
+    return profile_for(args.env_id).level_kwargs(
+        args.num_levels, args.start_level, args.distribution_mode, args.eval_distribution_mode,
+        training=False)
