@@ -55,7 +55,14 @@ from routine_gym.returns import (
     primitive_returns,
     routine_reward_and_discount,
 )
-from routine_gym.run import Every, eval_env_kwargs, run_script, start_run, train_env_kwargs
+from routine_gym.run import (
+    Every,
+    eval_env_kwargs,
+    level_env_kwargs,
+    run_script,
+    start_run,
+    train_env_kwargs,
+)
 from routine_gym.wrapper import merge_final
 
 
@@ -121,6 +128,9 @@ class Args:
     """Levenshtein distance under which similar routines are pruned"""
     proposer: Literal["full", "random", "enumerate", "random-fetch", "repeat"] = "full"
     """full: Sequitur (the paper's model); the others are the discovery ablations"""
+    min_routine_length: int = 2
+    """ignore routine candidates shorter than this (the scalability experiment's longer
+    routines; the ablations copy the lengths the full model then finds)"""
 
     # Procgen
     num_levels: int = 100
@@ -131,6 +141,9 @@ class Args:
     """Procgen: level difficulty for training"""
     eval_distribution_mode: Literal["easy", "hard"] = "easy"
     """Procgen: difficulty of the (unseen) evaluation levels"""
+    extra_evals: tuple[Literal["train", "easy", "hard"], ...] = ()
+    """Procgen: more evaluations after the main one, each in eval-NAME.json: `train` (the
+    training levels), `easy` or `hard` (unseen levels of that difficulty)"""
 
     # Running it
     save_model: bool = False
@@ -182,6 +195,8 @@ def main(args: Args) -> None:
     # most the steps done to go straight to evaluation and demo recording.
     run = start_run(args, "rapl_a2c.py", CHECKPOINT_KEYS, lower_budget=True)
     args, device, writer = run.args, run.device, run.writer
+    for levels in args.extra_evals:
+        level_env_kwargs(args, levels)  # refused now, not after training
 
     # Routines: mined from the demo (or loaded), printed with action names, saved with the run.
     demo, library = None, None
@@ -193,8 +208,8 @@ def main(args: Args) -> None:
         library = load_routines(
             args.env_id, args.num_routines, demo=demo, library_path=args.routine_library,
             proposer=args.proposer, length_weight=args.length_weight, alpha=args.alpha,
-            seed=args.seed, source={"path": args.demo}, env_kwargs=train_env_kwargs(args),
-            required=f"--mode {args.mode}",
+            seed=args.seed, min_length=args.min_routine_length, source={"path": args.demo},
+            env_kwargs=train_env_kwargs(args), required=f"--mode {args.mode}",
         )
     if library is not None:
         probe = make_primitive_env(args.env_id, **train_env_kwargs(args))
@@ -390,6 +405,12 @@ def main(args: Args) -> None:
                                   env_kwargs=eval_env_kwargs(args))
         summary.update(method=args.mode, global_step=global_step)
         save_evaluation(summary, run.path, writer, global_step)
+        for levels in args.extra_evals:
+            summary = evaluate_policy(args.env_id, policy, args.eval_episodes,
+                                      seed=args.seed + 10_000, routines=library,
+                                      env_kwargs=level_env_kwargs(args, levels))
+            summary.update(method=args.mode, global_step=global_step, levels=levels)
+            save_evaluation(summary, run.path, writer, global_step, name=f"eval-{levels}")
 
     if args.record_demo:
         def wrap(env):

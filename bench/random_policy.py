@@ -16,42 +16,16 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
 from common import base_machine_info, load_average
 
 import routine_gym
 from routine_gym.atomic import atomic_write_text
 from routine_gym.demo import DEMO_SUITE
-from routine_gym.envs import profile_for
-from routine_gym.envs.factory import make_primitive_env
+from routine_gym.evaluation import random_policy_scores
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
-#: The env arguments the CoinRun expert trains and records on (`rapl_a2c.py`'s defaults).
-COINRUN_TRAIN_LEVELS = {"num_levels": 100, "start_level": 0, "distribution_mode": "easy"}
-
-
-def random_scores(env_id: str, episodes: int, seed: int) -> dict:
-    """Score and length of `episodes` random-policy episodes, the first seeded with `seed`."""
-    kwargs = COINRUN_TRAIN_LEVELS if profile_for(env_id).has_levels else {}
-    env = make_primitive_env(env_id, **kwargs)
-    env.action_space.seed(seed)
-    scores, lengths = [], []
-    for episode in range(episodes):
-        env.reset(seed=seed + episode)
-        score, length, done = 0.0, 0, False
-        while not done:
-            _, reward, terminated, truncated, _ = env.step(env.action_space.sample())
-            score += float(reward)
-            length += 1
-            done = terminated or truncated
-        scores.append(score)
-        lengths.append(length)
-    env.close()
-    return {"env_id": env_id, "env_kwargs": kwargs, "episodes": episodes, "seed": seed,
-            "scores": scores, "lengths": lengths,
-            "mean": float(np.mean(scores)), "std": float(np.std(scores)),
-            "mean_length": float(np.mean(lengths))}
+random_scores = random_policy_scores  # the name the other benchmarks import
 
 
 def main() -> None:

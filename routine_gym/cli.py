@@ -383,7 +383,84 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--env-kwarg", action="append", metavar="KEY=VALUE",
                    help="keyword argument for gym.make (repeatable)")
     p.set_defaults(func=cmd_play)
+
+    p = sub.add_parser("experiment", help="the paper's six experiments: list, run, report",
+                       description="The paper's six experiments (SPEC §8) as sweeps of runs of "
+                       "the scripts in algos/: resumable, local or on a Ray cluster.")
+    esub = p.add_subparsers(dest="action", required=True, metavar="ACTION")
+    q = esub.add_parser("list", help="the experiments, their budgets and how many runs each has")
+    q.set_defaults(func=cmd_experiment_list)
+    q = esub.add_parser("run", help="run an experiment (finished runs are skipped, killed ones "
+                        "resume)")
+    q.add_argument("name", help="imitation, rl, curves, coinrun, scalability, ablation or all")
+    q.add_argument("--budget", required=True, help="smoke, cpu or paper")
+    q.add_argument("--out", required=True, help="the sweep folder (the same one to resume)")
+    q.add_argument("--jobs", type=int, default=1,
+                   help="runs at a time (local), or the local Ray instance's CPUs (1)")
+    q.add_argument("--backend", default="local", help="local (default) or ray")
+    q.add_argument("--address", default=None,
+                   help="HOST:PORT of a Ray cluster to join (default: start a local one)")
+    q.add_argument("--seeds", type=int, nargs="+", default=None, help="only these seeds")
+    q.add_argument("--envs", nargs="+", default=None, help="only these games")
+    q.add_argument("--cuda", action="store_true", help="runs use CUDA (Ray: one GPU per run)")
+    q.add_argument("--cpus-per-run", type=int, default=1, help="CPUs a Ray task asks for (1)")
+    q.set_defaults(func=cmd_experiment_run)
+    q = esub.add_parser("report", help="figures (PNG + CSV) and report.md of a sweep folder")
+    q.add_argument("out", help="the sweep folder of `experiment run`")
+    q.set_defaults(func=cmd_experiment_report)
     return parser
+
+
+def cmd_experiment_list(args: argparse.Namespace) -> int:
+    from routine_gym.experiments.specs import BUDGETS, EXPERIMENTS, count_runs
+
+    print(f"{'experiment':12s} {'figure':8s} " + "  ".join(f"{b:>22s}" for b in BUDGETS))
+    for name, experiment in EXPERIMENTS.items():
+        cells = []
+        for budget in BUDGETS:
+            runs, steps = count_runs(name, budget)
+            cells.append(f"{runs:>5d} runs {_steps(steps):>11s}")
+        print(f"{name:12s} {experiment.figure:8s} " + "  ".join(f"{c:>22s}" for c in cells))
+        print(f"{'':12s} {experiment.title}")
+    print()
+    for budget in BUDGETS.values():
+        print(f"{budget.name:6s} {budget.description}")
+    return 0
+
+
+def _steps(steps: int) -> str:
+    for unit, size in (("G", 10**9), ("M", 10**6), ("k", 10**3)):
+        if steps >= size:
+            return f"{steps / size:.1f}{unit} steps"
+    return f"{steps} steps"
+
+
+def cmd_experiment_run(args: argparse.Namespace) -> int:
+    from routine_gym.experiments.specs import EXPERIMENTS
+    from routine_gym.experiments.sweep import install_signal_handlers, run_experiment
+
+    names = list(EXPERIMENTS) if args.name == "all" else [args.name]
+    install_signal_handlers()
+    failed = 0
+    for name in names:
+        summary = run_experiment(name, args.budget, args.out, jobs=args.jobs,
+                                 backend=args.backend, address=args.address, seeds=args.seeds,
+                                 envs=args.envs, cuda=args.cuda, cpus_per_run=args.cpus_per_run)
+        for key, why in summary.failed.items():
+            print(f"[{name}] run {key} failed: {why} (log: {args.out}/runs/{key}/log.txt)")
+        failed += len(summary.failed)
+    if failed:
+        print(f"{failed} run(s) failed; the others finished. Run the same command to retry them.")
+        return 1
+    return 0
+
+
+def cmd_experiment_report(args: argparse.Namespace) -> int:
+    from routine_gym.experiments.report import write_report
+
+    for path in write_report(args.out):
+        print(path)
+    return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:

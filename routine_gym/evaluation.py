@@ -115,19 +115,59 @@ def evaluate_policy(
     return summary
 
 
-def save_evaluation(summary: dict[str, Any], run_path: str, writer: Any, global_step: int) -> None:
-    """Write `eval.json` (atomically) and the `eval/*` TensorBoard scalars; print one line."""
-    atomic_write_text(os.path.join(run_path, "eval.json"), json.dumps(summary, indent=2) + "\n")
-    writer.add_scalar("eval/mean_return", summary["mean_return"], global_step)
-    line = (f"eval over {summary['episodes']} episodes: return {summary['mean_return']:.1f} ± "
+def save_evaluation(summary: dict[str, Any], run_path: str, writer: Any, global_step: int,
+                    name: str = "eval") -> None:
+    """Write `{name}.json` (atomically) and the `{name}/*` TensorBoard scalars; print one
+    line."""
+    atomic_write_text(os.path.join(run_path, f"{name}.json"), json.dumps(summary, indent=2) + "\n")
+    writer.add_scalar(f"{name}/mean_return", summary["mean_return"], global_step)
+    line = (f"{name} over {summary['episodes']} episodes: return {summary['mean_return']:.1f} ± "
             f"{summary['std_return']:.1f}")
     if "mean_alignment" in summary:
-        writer.add_scalar("eval/mean_alignment", summary["mean_alignment"], global_step)
-        writer.add_scalar("eval/std_alignment", summary["std_alignment"], global_step)
+        writer.add_scalar(f"{name}/mean_alignment", summary["mean_alignment"], global_step)
+        writer.add_scalar(f"{name}/std_alignment", summary["std_alignment"], global_step)
         line += (f", alignment {summary['mean_alignment']:.3f} ± "
                  f"{summary['std_alignment']:.3f}")
     if "human_normalized_score" in summary:
-        writer.add_scalar("eval/human_normalized_score", summary["human_normalized_score"],
+        writer.add_scalar(f"{name}/human_normalized_score", summary["human_normalized_score"],
                           global_step)
         line += f", human-normalised {summary['human_normalized_score']:.1%}"
     print(line, flush=True)
+
+
+#: The levels the CoinRun expert trains and records on (`rapl_a2c.py`'s defaults): the random
+#: policy is scored there too.
+TRAIN_LEVELS = {"num_levels": 100, "start_level": 0, "distribution_mode": "easy"}
+
+
+def random_policy_scores(env_id: str, episodes: int, seed: int) -> dict[str, Any]:
+    """Score and length of `episodes` full games of the uniformly random policy in the primitive
+    env demos are recorded in (`make_primitive_env`; Procgen on the training levels), episode
+    `k` reset with seed `seed + k`.
+
+    Returns:
+        `env_id, env_kwargs, episodes, seed, scores, lengths, mean, std, mean_length`.
+    """
+    from routine_gym.envs.factory import make_primitive_env
+
+    kwargs = TRAIN_LEVELS if profile_for(env_id).has_levels else {}
+    env = make_primitive_env(env_id, **kwargs)
+    env.action_space.seed(seed)
+    scores, lengths = [], []
+    try:
+        for episode in range(episodes):
+            env.reset(seed=seed + episode)
+            score, length, done = 0.0, 0, False
+            while not done:
+                _, reward, terminated, truncated, _ = env.step(env.action_space.sample())
+                score += float(reward)
+                length += 1
+                done = terminated or truncated
+            scores.append(score)
+            lengths.append(length)
+    finally:
+        env.close()
+    return {"env_id": env_id, "env_kwargs": dict(kwargs), "episodes": episodes, "seed": seed,
+            "scores": scores, "lengths": lengths,
+            "mean": float(np.mean(scores)), "std": float(np.std(scores)),
+            "mean_length": float(np.mean(lengths))}

@@ -116,6 +116,7 @@ def load_routines(
     length_weight: float = 0.1,
     alpha: int = 2,
     seed: int = 0,
+    min_length: int = 2,
     source: dict[str, Any] | None = None,
     env_kwargs: dict[str, Any] | None = None,
     required: str | None = None,
@@ -130,7 +131,8 @@ def load_routines(
         num_routines: K.
         demo: the demo to mine (not needed with `library_path`).
         library_path: a saved `RoutineLibrary` JSON to take the best K of, instead of mining.
-        proposer, length_weight, alpha, seed: the miner (`routine_gym.mining.make_proposer`).
+        proposer, length_weight, alpha, seed, min_length: the miner
+            (`routine_gym.mining.make_proposer`).
         source: provenance the mined library records (the demo's path).
         env_kwargs: `gym.make` keyword arguments of the env a saved library is checked against.
         required: when set (`"--mode rapl"`), finding no routine is an error naming it.
@@ -188,7 +190,11 @@ def load_routines(
     else:
         if demo is None:
             raise ValueError("load_routines needs a demo to mine or a library_path")
-        miner = make_proposer(proposer, num_routines, length_weight, alpha, seed=seed)
+        try:
+            miner = make_proposer(proposer, num_routines, length_weight, alpha, seed=seed,
+                                  min_length=min_length)
+        except ValueError as err:
+            raise UsageError(str(err).replace("min_length", "--min-routine-length")) from None
         with warnings.catch_warnings():
             # The miner's own "only k routines survive" warning is re-issued below.
             warnings.simplefilter("ignore")

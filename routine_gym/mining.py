@@ -371,6 +371,8 @@ class SequiturMiner:
         prune_primitives: count the primitive actions as accepted routines, so candidates
             within `alpha` of a single action are pruned too (the authors' behaviour).
         max_length: ignore candidates longer than this (None: no limit).
+        min_length: ignore candidates shorter than this (the scalability experiment's longer
+            routines; 2 keeps every candidate).
     """
 
     num_routines: int = 3
@@ -378,6 +380,7 @@ class SequiturMiner:
     alpha: int = 2
     prune_primitives: bool = True
     max_length: int | None = None
+    min_length: int = 2
 
     name = "full"
 
@@ -385,6 +388,12 @@ class SequiturMiner:
         _check_params(self.num_routines, self.length_weight, self.alpha)
         if self.max_length is not None and self.max_length < 2:
             raise ValueError(f"max_length needs to be ≥ 2 or None, got {self.max_length}")
+        if isinstance(self.min_length, bool) or not isinstance(self.min_length, int) or (
+                self.min_length < 2):
+            raise ValueError(f"min_length needs to be an integer ≥ 2, got {self.min_length!r}")
+        if self.max_length is not None and self.min_length > self.max_length:
+            raise ValueError(f"min_length {self.min_length} is above max_length "
+                             f"{self.max_length}: no candidate could be kept")
 
     def params(self) -> dict[str, Any]:
         """The proposer's name and settings, as the library records them."""
@@ -393,9 +402,8 @@ class SequiturMiner:
     def candidates(self, episodes: Sequence[np.ndarray]) -> list[Routine]:
         """Every non-start rule of the grammar, expanded; duplicates merged, order kept."""
         seen = dict.fromkeys(induce(episodes).expansions())
-        if self.max_length is not None:
-            return [c for c in seen if len(c) <= self.max_length]
-        return list(seen)
+        longest = self.max_length if self.max_length is not None else float("inf")
+        return [c for c in seen if self.min_length <= len(c) <= longest]
 
     def mine(
         self,
@@ -429,11 +437,13 @@ class _Ablation:
     alpha: int = 2
     prune_primitives: bool = True
     seed: int = 0
+    min_length: int = 2
 
     name = "ablation"
 
     def __post_init__(self) -> None:
         _check_params(self.num_routines, self.length_weight, self.alpha)
+        SequiturMiner(min_length=self.min_length)  # the same check of min_length
 
     def params(self) -> dict[str, Any]:
         """The proposer's name and settings, as the library records them."""
@@ -450,7 +460,8 @@ class _Ablation:
         index = OccurrenceIndex(episodes)
         selector = _Selector(index, self.length_weight, self.alpha, self.prune_primitives)
         full = SequiturMiner(
-            self.num_routines, self.length_weight, self.alpha, self.prune_primitives
+            self.num_routines, self.length_weight, self.alpha, self.prune_primitives,
+            min_length=self.min_length,
         )
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -554,10 +565,14 @@ def make_proposer(
     alpha: int = 2,
     seed: int = 0,
     prune_primitives: bool = True,
+    min_length: int = 2,
 ) -> RoutineProposer:
-    """The proposer called `name` (`full`, `random`, `enumerate`, `random-fetch`, `repeat`)."""
+    """The proposer called `name` (`full`, `random`, `enumerate`, `random-fetch`, `repeat`);
+    `min_length` is the full model's shortest routine, whose lengths the ablations copy."""
     if name not in PROPOSERS:
         raise ValueError(f"unknown proposer {name!r}; choose from {', '.join(PROPOSERS)}")
     if name == "full":
-        return SequiturMiner(num_routines, length_weight, alpha, prune_primitives)
-    return PROPOSERS[name](num_routines, length_weight, alpha, prune_primitives, seed)
+        return SequiturMiner(num_routines, length_weight, alpha, prune_primitives,
+                             min_length=min_length)
+    return PROPOSERS[name](num_routines, length_weight, alpha, prune_primitives, seed,
+                           min_length)

@@ -42,6 +42,7 @@ __all__ = [
     "check_args",
     "check_env",
     "eval_env_kwargs",
+    "level_env_kwargs",
     "parse_args",
     "run_script",
     "start_run",
@@ -63,6 +64,7 @@ DOMAINS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "num_steps": _AT_LEAST_1,
     "num_routines": _AT_LEAST_0,
     "alpha": _AT_LEAST_1,
+    "min_routine_length": (lambda v: v >= 2, "≥ 2"),
     "length_weight": _AT_LEAST_0,
     "gamma": _UNIT,
     "gae_lambda": (lambda v: 0 <= v <= 1, "in [0, 1]"),
@@ -431,6 +433,25 @@ def train_env_kwargs(args: Any) -> dict[str, Any]:
     return profile_for(args.env_id).level_kwargs(
         args.num_levels, args.start_level, args.distribution_mode, args.eval_distribution_mode,
         training=True)
+
+
+def level_env_kwargs(args: Any, levels: str) -> dict[str, Any]:
+    """The levels `--extra-evals` names: `train` (the training levels), or `easy`/`hard` (the
+    unseen levels of that difficulty). Only for families with levels (Procgen).
+
+    Raises:
+        UsageError: `args.env_id`'s family has no levels.
+    """
+    from routine_gym.envs import profile_for
+
+    profile = profile_for(args.env_id)
+    if not profile.has_levels:
+        raise UsageError(f"--extra-evals {levels}: {args.env_id} has no levels (only Procgen "
+                         "envs do)")
+    if levels == "train":
+        return train_env_kwargs(args)
+    return profile.level_kwargs(args.num_levels, args.start_level, args.distribution_mode,
+                                levels, training=False)
 
 
 def eval_env_kwargs(args: Any) -> dict[str, Any]:

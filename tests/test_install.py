@@ -115,3 +115,16 @@ def test_an_editable_install_reads_the_repositorys_demos_folder_in_place(repo_ro
     if not Path(routine_gym.demo.__file__).is_relative_to(repo_root):
         pytest.skip("routine_gym is not imported from this repository")
     assert Path(routine_gym.demo.DEMOS_DIR) == repo_root / "demos"
+
+
+@pytest.mark.slow
+def test_installed_experiment_runs_the_scripts_shipped_in_the_package(installed, tmp_path):
+    out = tmp_path / "sweep"
+    proc = _run(installed, str(installed["site"] / "bin" / "routine-gym"), "experiment", "run",
+                "rl", "--budget", "smoke", "--out", str(out), "--jobs", "2")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    results = sorted(out.glob("runs/*/result.json"))
+    assert len(results) == 2
+    for result in results:
+        log = (result.parent / "log.txt").read_text()
+        assert str(installed["site"] / "routine_gym" / "algos" / "rapl_a2c.py") in log

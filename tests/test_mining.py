@@ -203,6 +203,7 @@ def test_worked_example_library():
         "alpha": 2,
         "prune_primitives": True,
         "max_length": None,
+        "min_length": 2,
     }
 
 
@@ -223,6 +224,22 @@ def test_length_weight_changes_scores_and_order(length_weight, routines, scores)
 def test_max_length_drops_long_candidates():
     library = mine_quietly(SequiturMiner(max_length=5), WORKED)
     assert library.routines == ((2, 2, 3),)
+
+
+@pytest.mark.parametrize(("min_length", "routines"), [
+    (3, ((2, 2, 3), (4, 4, 1, 2, 2, 3))),  # 3 is the shortest candidate here: nothing dropped
+    (4, ((4, 4, 1, 2, 2, 3),)),
+    (6, ((4, 4, 1, 2, 2, 3),)),
+    (7, ()),  # the grammar's longest expansion has 6 actions
+])
+def test_min_length_drops_short_candidates(min_length, routines):
+    assert mine_quietly(SequiturMiner(min_length=min_length), WORKED).routines == routines
+
+
+def test_ablations_copy_the_lengths_of_the_full_model_with_min_length():
+    library = mine_quietly(make_proposer("random", min_length=4, seed=1), WORKED)
+    assert library.lengths == (6,)
+    assert library.params["min_length"] == 4
 
 
 def test_score_ties_go_to_the_longer_routine():
@@ -415,6 +432,7 @@ def test_make_proposer_builds_each_kind():
         "alpha": 3,
         "prune_primitives": False,
         "seed": 7,
+        "min_length": 2,
     }
 
 
@@ -527,6 +545,8 @@ def test_bad_demonstrations_are_rejected(name, actions, error, match):
         ({"length_weight": -0.1}, ValueError, "finite number ≥ 0, got -0.1"),
         ({"length_weight": float("nan")}, ValueError, "length_weight needs to be a finite number"),
         ({"max_length": 1}, ValueError, "max_length needs to be ≥ 2 or None, got 1"),
+        ({"min_length": 1}, ValueError, "min_length needs to be an integer ≥ 2, got 1"),
+        ({"min_length": 5, "max_length": 4}, ValueError, "min_length 5 is above max_length 4"),
     ],
 )
 def test_bad_miner_parameters_are_rejected(kwargs, error, match):

@@ -195,7 +195,7 @@ class ProcgenEnv(gym.Env[np.ndarray, int]):
         """
         super().reset(seed=seed)
         if seed is not None:
-            self._game.close()
+            _close_game(self._game)
             self._game = self._make_game(rand_seed=int(seed) % _RAND_SEED_RANGE)
         elif not self._episode_pending:
             # -1 is Procgen's "end this episode now" action: the game resets to its next level.
@@ -255,8 +255,19 @@ class ProcgenEnv(gym.Env[np.ndarray, int]):
 
     def close(self) -> None:
         """Free the Procgen game."""
-        self._game.close()
+        _close_game(self._game)
         super().close()
+
+
+def _close_game(game: Any) -> None:
+    """Close a gym3 game and drop its C buffers, which hold exported views of its numpy arrays:
+    left to the garbage collector, such a view can be cleared while still exported, and the
+    interpreter crashes (a segfault at exit after several games were made and closed)."""
+    game.close()
+    for name in ("_c_buffers", "_c_ob_buffers", "_c_ac_buffers", "_c_info_buffers",
+                 "_c_rew_buffer", "_c_first_buffer"):
+        if hasattr(game, name):
+            setattr(game, name, None)
 
 
 class ProcgenProfile(EnvProfile):

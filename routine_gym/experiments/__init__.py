@@ -1,0 +1,1 @@
+"""The paper's six experiments (SPEC §8)."""

@@ -1,0 +1,1129 @@
+"""The report of a sweep (`routine-gym experiment report OUT`, SPEC §8): the paper's Table 1 and
+Figures 2–6 from the runs `routine-gym experiment run` left in `OUT`.
+
+`write_report(OUT)` reads the manifests `OUT/{experiment}.json` and each run's
+`OUT/runs/{key}/result.json` (and, for the curves, its TensorBoard log) and writes into
+`OUT/report/`:
+
+- per experiment a figure and the CSV behind it: `table1_imitation`, `fig2_rl`, `fig3_curves`,
+  `fig4_coinrun`, `fig5_scalability`, `fig6_ablation` (`.png` and `.csv`);
+- `report.md`: the sweep's budget, the date of its latest finished run, which runs are
+  missing, and a table per experiment with the paper's numbers where it gives them;
+- `reference_scores.json`: the scores each game is normalised with (a cache: the random
+  policy's score is played once).
+
+A run's score is its final evaluation's mean return (`eval.mean_return` of `result.json`).
+Scores are normalised per game (`Reference`): human-normalised with the published table where
+the env's profile has a key in it (Atari), else demo-normalised `(score − random)/(demo −
+random)` with the shipped demo's best episode and the uniformly random policy's mean score,
+else left raw (and out of the aggregates). Aggregates over seeds and games come from rliable:
+the IQM with a 95 % stratified-bootstrap interval and the probability of improvement, each over
+a `(runs, games)` matrix (`score_matrix`).
+
+Error bars: Table 1 alignment ± sample std over all runs, score IQM with its 95 % CI;
+Fig. 2 the standard error over seeds of S_R divided by |S_A|; Fig. 3 ± sample std over seeds of
+the binned curves; Fig. 4 ± sample std over seeds; Fig. 5 ± standard error over seeds of each
+seed's relative performance averaged over games; Fig. 6 the IQM's 95 % CI.
+
+Importing this module is cheap: rliable, matplotlib, TensorBoard and the envs load when a
+report is written.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import re
+import warnings
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from routine_gym.atomic import atomic_write_text, temporary_path
+from routine_gym.errors import UsageError
+
+__all__ = [
+    "ABLATION_COLOURS",
+    "ABLATION_VARIANTS",
+    "COLOURS",
+    "CURVE_BINS",
+    "EXPERIMENT_NAMES",
+    "FILES",
+    "Manifest",
+    "PAPER_TABLE1",
+    "Reference",
+    "Run",
+    "bin_curve",
+    "demo_score",
+    "iqm_intervals",
+    "load_runs",
+    "probability_of_improvement",
+    "random_policy_scores",
+    "read_episodic_returns",
+    "reference_scores",
+    "score_matrix",
+    "write_report",
+]
+
+#: The six experiments, in the order of the report.
+EXPERIMENT_NAMES = ("imitation", "rl", "curves", "coinrun", "scalability", "ablation")
+#: The file stem of each experiment's figure and CSV in `OUT/report/`.
+FILES = {"imitation": "table1_imitation", "rl": "fig2_rl", "curves": "fig3_curves",
+         "coinrun": "fig4_coinrun", "scalability": "fig5_scalability",
+         "ablation": "fig6_ablation"}
+_HEADINGS = {"imitation": "Table 1", "rl": "Fig. 2", "curves": "Fig. 3", "coinrun": "Fig. 4",
+             "scalability": "Fig. 5", "ablation": "Fig. 6"}
+
+#: One colour per method, the same in every figure (matplotlib's tab10).
+COLOURS = {
+    "A2C": "#7f7f7f",
+    "RAPL-A2C": "#d62728",
+    "MacroAction": "#1f77b4",
+    "OptionCritic": "#2ca02c",
+    "CompILE": "#9467bd",
+    "BC": "#8c564b",
+    "GAIL": "#e377c2",
+    "SQIL": "#17becf",
+    "RAPL-SQIL": "#ff7f0e",
+}
+#: The discovery ablations of Fig. 6 in the paper's order, and one colour each (Full is the
+#: full RAPL-A2C, in its colour).
+ABLATION_VARIANTS = ("Full", "RR", "PbE", "RF", "ID", "RP")
+ABLATION_COLOURS = {"Full": COLOURS["RAPL-A2C"], "RR": "#bcbd22", "PbE": "#1f77b4",
+                    "RF": "#9467bd", "ID": "#8c564b", "RP": "#e377c2"}
+_OTHER_COLOUR = "#333333"
+
+#: The paper's Table 1 (Atari): method → (alignment, human-normalised score).
+PAPER_TABLE1 = {"BC": (0.18, 0.183), "GAIL": (0.16, 0.264), "SQIL": (0.28, 0.294),
+                "RAPL-SQIL": (0.34, 0.361)}
+_METHOD_ORDER = {
+    "imitation": ("BC", "GAIL", "SQIL", "RAPL-SQIL"),
+    "rl": ("A2C", "RAPL-A2C"),
+    "curves": ("A2C", "MacroAction", "OptionCritic", "CompILE", "RAPL-A2C"),
+    "coinrun": ("A2C", "RAPL-A2C"),
+    "scalability": ("RAPL-A2C", "MacroAction"),
+}
+
+#: Step bins of a training curve (Fig. 3) from 0 to the run's budget.
+CURVE_BINS = 50
+RETURN_TAG = "charts/episodic_return"
+#: Episodes and first seed of the random policy behind a demo-normalised score.
+REFERENCE_EPISODES = 10
+REFERENCE_SEED = 0
+_COINRUN_LEVELS = (("train", "train levels"), ("easy", "unseen easy"), ("hard", "hard"))
+_MAX_MISSING_LISTED = 40
+
+
+# -- the sweep's runs ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Run:
+    """One entry of an experiment's manifest and, when the run finished, its `result.json`."""
+
+    key: str
+    method: str
+    env_id: str
+    seed: int
+    variant: Mapping[str, Any]
+    role: str
+    steps: int
+    folder: Path
+    result: Mapping[str, Any] | None = None
+
+    @property
+    def finished(self) -> bool:
+        return self.result is not None
+
+    @property
+    def score(self) -> float:
+        """The final evaluation's mean return (unseen easy levels for CoinRun)."""
+        return float(self.result["eval"]["mean_return"])
+
+    def describe(self) -> str:
+        variant = "".join(f", {k}={v}" for k, v in self.variant.items())
+        return f"`{self.key}` ({self.method}, {self.env_id}, seed {self.seed}{variant})"
+
+
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise UsageError(f"{path}: not valid JSON ({exc})") from None
+
+
+class Manifest(NamedTuple):
+    """An experiment's manifest, `OUT/{experiment}.json`, with its runs."""
+
+    budget: str
+    description: str
+    runs: list[Run]
+
+
+def load_runs(out: str | Path, experiment: str,
+              results: dict[str, Mapping[str, Any] | None] | None = None) -> Manifest | None:
+    """The manifest `OUT/{experiment}.json` with its runs, or None when it is absent.
+
+    Each run carries its `result.json` when it has one; `results` caches them by key across
+    experiments (several experiments share runs).
+
+    Raises:
+        UsageError: naming the file, for a manifest or result that is not valid JSON or a
+            manifest entry without its fields.
+    """
+    out = Path(out)
+    path = out / f"{experiment}.json"
+    if not path.is_file():
+        return None
+    manifest = _read_json(path)
+    results = {} if results is None else results
+    runs = []
+    for entry in manifest.get("runs", []):
+        try:
+            key = entry["key"]
+            if key not in results:
+                result_path = out / "runs" / key / "result.json"
+                results[key] = _read_json(result_path) if result_path.is_file() else None
+            runs.append(Run(key=key, method=entry["method"], env_id=entry["env_id"],
+                            seed=int(entry["seed"]), variant=dict(entry.get("variant") or {}),
+                            role=entry.get("role", "main"), steps=int(entry.get("steps", 0)),
+                            folder=out / "runs" / key, result=results[key]))
+        except (KeyError, TypeError) as exc:
+            raise UsageError(f"{path}: a run entry lacks {exc} ({entry!r})") from None
+    return Manifest(str(manifest.get("budget", "?")), str(manifest.get("description", "")), runs)
+
+
+# -- normalisation ------------------------------------------------------------------------------
+
+
+class Reference(NamedTuple):
+    """How a game's scores are normalised: `kind` is `"human"` (the published table, under
+    `key`), `"demo"` (`(score − random)/(demo − random)`) or `"raw"` (not normalised)."""
+
+    kind: str
+    random: float | None = None
+    top: float | None = None  # the human score or the demo's
+    key: str | None = None
+    note: str = ""
+
+    def normalise(self, score: float) -> float:
+        if self.kind == "human":
+            from routine_gym.metrics import human_normalized_score
+
+            return float(human_normalized_score(score, self.key))
+        if self.kind == "demo":
+            return (float(score) - self.random) / (self.top - self.random)
+        return float(score)
+
+
+def random_policy_scores(env_id: str, episodes: int, seed: int) -> dict[str, Any]:
+    """The uniformly random policy's scores (`routine_gym.evaluation.random_policy_scores`)."""
+    from routine_gym.evaluation import random_policy_scores as play
+
+    return play(env_id, episodes, seed)
+
+
+def demo_score(env_id: str) -> float | None:
+    """The score of the best episode of `env_id`'s shipped demo, or None without one."""
+    from routine_gym.demo import Demo, shipped_demo_path
+
+    path = shipped_demo_path(env_id)
+    if path is None:
+        return None
+    demo = Demo.load(path)
+    return float(demo.scores[demo.best_episode])
+
+
+def _human_key(env_id: str) -> str | None:
+    from routine_gym.envs import profile_for
+    from routine_gym.metrics import atari_game_name
+
+    key = profile_for(env_id).score_key(env_id)
+    if key is None:
+        return None
+    try:
+        atari_game_name(key)
+    except ValueError:
+        return None  # an Atari game outside the published table
+    return key
+
+
+def reference_scores(env_ids: Iterable[str], cache: str | Path) -> dict[str, Reference]:
+    """Each env's `Reference`, written to `cache` (JSON); a random-policy score already there
+    (same episodes and seed) is reused rather than played again."""
+    from routine_gym.metrics import HUMAN_RANDOM_SCORES, atari_game_name
+
+    cache = Path(cache)
+    cached: dict[str, Any] = {}
+    if cache.is_file():
+        try:
+            stored = json.loads(cache.read_text())
+        except json.JSONDecodeError:
+            stored = {}
+        if (stored.get("episodes"), stored.get("seed")) == (REFERENCE_EPISODES, REFERENCE_SEED):
+            cached = stored.get("envs", {})
+    references: dict[str, Reference] = {}
+    for env_id in sorted(set(env_ids)):
+        key = _human_key(env_id)
+        if key is not None:
+            random, human = HUMAN_RANDOM_SCORES[atari_game_name(key)]
+            references[env_id] = Reference("human", random, human, key)
+            continue
+        demo = demo_score(env_id)
+        if demo is None:
+            references[env_id] = Reference("raw", note="no shipped demo and no published table")
+            continue
+        random = cached.get(env_id, {}).get("random")
+        if random is None:
+            random = random_policy_scores(env_id, REFERENCE_EPISODES, REFERENCE_SEED)["mean"]
+        random = float(random)
+        if math.isclose(demo, random):
+            references[env_id] = Reference("raw", random, demo,
+                                           note="the demo scores as the random policy")
+        else:
+            references[env_id] = Reference("demo", random, demo)
+    envs = {env_id: {"normalisation": ref.kind, "random": ref.random, "reference": ref.top,
+                     "score_key": ref.key, "note": ref.note}
+            for env_id, ref in references.items()}
+    atomic_write_text(cache, json.dumps({"episodes": REFERENCE_EPISODES, "seed": REFERENCE_SEED,
+                                         "envs": {**cached, **envs}}, indent=2) + "\n")
+    return references
+
+
+# -- aggregates (rliable) ------------------------------------------------------------------------
+
+
+def score_matrix(runs: Sequence[Run], games: Sequence[str],
+                 value: Callable[[Run], float]) -> np.ndarray | None:
+    """The `(runs, games)` matrix rliable aggregates: column `g` holds `value(run)` of the
+    finished runs of game `g` by increasing seed, cut to the fewest runs any game has (a
+    rectangle); None when a game has none."""
+    columns = []
+    for game in games:
+        done = sorted((r for r in runs if r.env_id == game and r.finished), key=lambda r: r.seed)
+        columns.append([value(r) for r in done])
+    if not columns or min(len(c) for c in columns) == 0:
+        return None
+    n = min(len(c) for c in columns)
+    return np.array([c[:n] for c in columns], dtype=np.float64).T
+
+
+@contextmanager
+def _bootstrap_rng(seed: int) -> Iterator[np.random.RandomState]:
+    # rliable 1.2's stratified bootstraps draw their indices from NumPy's global RNG
+    # (np.random.choice) whatever random_state says, so the global RNG is seeded too, and
+    # put back afterwards, to make the intervals reproducible.
+    state = np.random.get_state()  # noqa: NPY002
+    np.random.seed(seed)  # noqa: NPY002
+    try:
+        with warnings.catch_warnings():
+            # arch warns about the RandomState rliable hands it.
+            warnings.filterwarnings("ignore", message="random_state is deprecated",
+                                    category=FutureWarning)
+            yield np.random.RandomState(seed)
+    finally:
+        np.random.set_state(state)  # noqa: NPY002
+
+
+def iqm_intervals(score_dict: Mapping[str, np.ndarray], reps: int = 2000,
+                  seed: int = 0) -> dict[str, tuple[float, float, float]]:
+    """`{name: (IQM, lo, hi)}`: rliable's IQM of each `(runs, games)` matrix and its 95 %
+    stratified-bootstrap percentile interval (`reps` resamples of the runs within each game).
+    Each matrix is resampled from the same seed, so its interval does not depend on the
+    others."""
+    from rliable import library as rly
+    from rliable import metrics as rmetrics
+
+    intervals = {}
+    for name, scores in score_dict.items():
+        with _bootstrap_rng(seed) as random_state:
+            points, cis = rly.get_interval_estimates(
+                {name: scores}, lambda x: np.array([rmetrics.aggregate_iqm(x)]), reps=reps,
+                random_state=random_state)
+        intervals[name] = (float(points[name][0]), float(cis[name][0, 0]),
+                           float(cis[name][1, 0]))
+    return intervals
+
+
+def probability_of_improvement(x: np.ndarray, y: np.ndarray, reps: int = 2000,
+                               seed: int = 0) -> tuple[float, float, float]:
+    """`(P(X > Y), lo, hi)`: rliable's probability that a run of X beats a run of Y on a game,
+    averaged over games (ties count a half), with its 95 % stratified-bootstrap interval;
+    `x` and `y` are `(runs, games)` matrices over the same games."""
+    from rliable import library as rly
+    from rliable import metrics as rmetrics
+
+    with _bootstrap_rng(seed) as random_state:
+        points, cis = rly.get_interval_estimates(
+            {"X,Y": (x, y)},
+            lambda a, b: np.array([rmetrics.probability_of_improvement(a, b)]), reps=reps,
+            random_state=random_state)
+    return float(points["X,Y"][0]), float(cis["X,Y"][0, 0]), float(cis["X,Y"][1, 0])
+
+
+def _mean_std(values: Sequence[float]) -> tuple[float, float]:
+    """Mean and sample standard deviation (0 for one value; NaN for none)."""
+    arr = np.asarray(values, dtype=np.float64)
+    if arr.size == 0:
+        return math.nan, math.nan
+    std = float(arr.std(ddof=1)) if arr.size > 1 else 0.0
+    return float(arr.mean()), std
+
+
+def _standard_error(values: Sequence[float]) -> float:
+    arr = np.asarray(values, dtype=np.float64)
+    return float(arr.std(ddof=1) / math.sqrt(arr.size)) if arr.size > 1 else 0.0
+
+
+# -- training curves -----------------------------------------------------------------------------
+
+
+def _event_file_order(path: Path) -> tuple[int, str]:
+    # events.out.tfevents.{unix time}.{host}...: a resumed run's file is the later one.
+    parts = path.name.split(".")
+    stamp = int(parts[3]) if len(parts) > 3 and parts[3].isdigit() else 0
+    return stamp, path.name
+
+
+def read_episodic_returns(folder: str | Path, tag: str = RETURN_TAG
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """`(steps, returns)` of the training episodes a run logged to TensorBoard under `tag`,
+    read from every event file in `folder`. A resumed run logs into a new file from its
+    checkpoint on; what an older file logged at or after the newer file's first step was
+    lost with the killed process and is dropped."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    points: list[tuple[int, float]] = []
+    for path in sorted(Path(folder).glob("events.out.tfevents.*"), key=_event_file_order):
+        events = EventAccumulator(str(path), size_guidance={"scalars": 0})
+        events.Reload()
+        if tag not in events.Tags()["scalars"]:
+            continue
+        new = [(e.step, e.value) for e in events.Scalars(tag)]
+        if new:
+            first = min(step for step, _ in new)
+            points = [p for p in points if p[0] < first] + new
+    points.sort(key=lambda p: p[0])
+    return (np.array([p[0] for p in points], dtype=np.int64),
+            np.array([p[1] for p in points], dtype=np.float64))
+
+
+def bin_curve(steps: Sequence[int] | np.ndarray, returns: Sequence[float] | np.ndarray,
+              total_steps: int, bins: int = CURVE_BINS) -> tuple[np.ndarray, np.ndarray]:
+    """A training curve on a common grid: `bins` equal step bins from 0 to `total_steps`.
+
+    The value at `x` (a bin's right edge) is the mean return of the episodes that ended in
+    `(x − w, x]`, `w = total_steps / bins`; an empty bin carries the previous value forward,
+    and bins before the first episode are NaN. Episodes past `total_steps` count in the last
+    bin.
+
+    Example:
+        >>> x, y = bin_curve([3, 4, 9], [5.0, 7.0, 2.0], total_steps=10, bins=5)
+        >>> x.tolist(), y.tolist()
+        ([2.0, 4.0, 6.0, 8.0, 10.0], [nan, 6.0, 6.0, 6.0, 2.0])
+    """
+    if bins < 1 or total_steps <= 0:
+        raise ValueError(f"bins and total_steps need to be ≥ 1, actual values: {bins}, "
+                         f"{total_steps}")
+    edges = np.linspace(0.0, float(total_steps), bins + 1)
+    steps = np.asarray(steps, dtype=np.float64)
+    returns = np.asarray(returns, dtype=np.float64)
+    index = np.clip(np.searchsorted(edges[1:], steps, side="left"), 0, bins - 1)
+    sums = np.bincount(index, weights=returns, minlength=bins)
+    counts = np.bincount(index, minlength=bins)
+    values = np.full(bins, np.nan)
+    last = np.nan
+    for b in range(bins):
+        if counts[b]:
+            last = sums[b] / counts[b]
+        values[b] = last
+    return edges[1:], values
+
+
+# -- writing -------------------------------------------------------------------------------------
+
+
+def _cell(value: Any) -> Any:
+    if isinstance(value, float | np.floating):
+        return "" if not math.isfinite(value) else repr(float(value))
+    return value
+
+
+@dataclass
+class _Writer:
+    """Writes the report's files atomically and remembers them."""
+
+    folder: Path
+    references: Mapping[str, Reference]
+    reps: int
+    seed: int
+    written: list[Path] = field(default_factory=list)
+
+    def csv(self, name: str, header: Sequence[str], rows: Iterable[Sequence[Any]]) -> None:
+        buffer = io.StringIO()
+        writer = csv.writer(buffer, lineterminator="\n")
+        writer.writerow(header)
+        writer.writerows([_cell(v) for v in row] for row in rows)
+        path = self.folder / f"{name}.csv"
+        atomic_write_text(path, buffer.getvalue())
+        self.written.append(path)
+
+    def png(self, fig: Any, name: str) -> None:
+        path = self.folder / f"{name}.png"
+        tmp = temporary_path(path)
+        try:
+            fig.savefig(tmp, format="png", dpi=120)
+            os.replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        self.written.append(path)
+
+
+def _figure(width: float, height: float) -> Any:
+    # A figure on the Agg canvas directly: no pyplot, no global backend, no window.
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height), layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _colour(name: str) -> str:
+    return COLOURS.get(name, ABLATION_COLOURS.get(name, _OTHER_COLOUR))
+
+
+_VERSION = re.compile(r"-v\d+$")
+
+
+def _game_labels(env_ids: Iterable[str]) -> dict[str, str]:
+    """Short names for the axes: `MinAtar/Breakout-v1` → `Breakout`, with the suite kept
+    where two suites share a game."""
+    env_ids = list(dict.fromkeys(env_ids))
+    full = {e: _VERSION.sub("", e.rpartition(":")[2]) for e in env_ids}
+    short = {e: name.rpartition("/")[2] for e, name in full.items()}
+    clash = {s for s in short.values() if list(short.values()).count(s) > 1}
+    return {e: full[e] if short[e] in clash else short[e] for e in env_ids}
+
+
+def _ordered(names: Iterable[str], order: Sequence[str]) -> list[str]:
+    names = set(names)
+    return [n for n in order if n in names] + sorted(names - set(order))
+
+
+def _table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return lines + [""]
+
+
+def _num(x: float, digits: int = 2) -> str:
+    return "–" if x is None or not math.isfinite(x) else f"{x:.{digits}f}"
+
+
+def _pct(x: float, digits: int = 1) -> str:
+    return "–" if x is None or not math.isfinite(x) else f"{100 * x:.{digits}f} %"
+
+
+def _interval(estimate: tuple[float, float, float] | None, percent: bool = True) -> str:
+    if estimate is None:
+        return "–"
+    point, lo, hi = estimate
+    if percent:
+        return f"{100 * point:.1f} % [{100 * lo:.1f}, {100 * hi:.1f}]"
+    return f"{point:.2f} [{lo:.2f}, {hi:.2f}]"
+
+
+# -- shared by the experiments -------------------------------------------------------------------
+
+
+def _groups(runs: Iterable[Run], label: Callable[[Run], str | None]) -> dict[str, list[Run]]:
+    """The finished main runs by label (a label of None leaves the run out)."""
+    groups: dict[str, list[Run]] = {}
+    for run in runs:
+        if run.role == "main" and run.finished and (name := label(run)) is not None:
+            groups.setdefault(name, []).append(run)
+    return groups
+
+
+class _Aggregate(NamedTuple):
+    games: list[str]  # the normalised games every group has finished runs of
+    matrices: dict[str, np.ndarray]  # group → (runs, games) normalised scores
+    iqm: dict[str, tuple[float, float, float]]
+    percent: bool  # normalised (shown in %) or, with no normalisable game, raw
+    left_out: list[str]  # games left out: raw, or some group has no run of them
+
+
+def _aggregate(w: _Writer, groups: Mapping[str, list[Run]]) -> _Aggregate:
+    """IQMs over the games that every group has finished and that have a normalisation."""
+    games = sorted({r.env_id for runs in groups.values() for r in runs})
+    common = [g for g in games if all(any(r.env_id == g for r in runs)
+                                      for runs in groups.values())]
+    normalised = [g for g in common if w.references.get(g, Reference("raw")).kind != "raw"]
+    percent = bool(normalised)
+    used = normalised if percent else common
+
+    def value(run: Run) -> float:
+        return w.references.get(run.env_id, Reference("raw")).normalise(run.score)
+
+    matrices = {}
+    for name, runs in groups.items():
+        matrix = score_matrix(runs, used, value) if used else None
+        if matrix is not None:
+            matrices[name] = matrix
+    iqm = iqm_intervals(matrices, reps=w.reps, seed=w.seed)
+    return _Aggregate(used, matrices, iqm, percent, [g for g in games if g not in used])
+
+
+def _aggregate_lines(w: _Writer, agg: _Aggregate, what: str = "final score") -> list[str]:
+    if not agg.games:
+        return ["No game has finished runs of every method: no aggregate.", ""]
+    kinds: dict[str, list[str]] = {}
+    for g in agg.games:
+        kinds.setdefault(w.references.get(g, Reference("raw")).kind, []).append(g)
+    names = {"human": "human-normalised", "demo": "demo-normalised", "raw": "raw"}
+    unit = "; ".join(f"{names[k]} on {', '.join(gs)}" for k, gs in sorted(kinds.items()))
+    unit = f"normalised ({unit}; see Normalisation)" if agg.percent else (
+        f"raw ({unit}: no game here has a normalisation)")
+    lines = [f"IQM of the {what}, {unit}, over {len(agg.games)} game(s) × the seeds every "
+             f"game has, with 95 % stratified-bootstrap CIs (rliable):", ""]
+    if agg.left_out:
+        lines += [f"Left out of the aggregates: {', '.join(agg.left_out)} (raw scores, or not "
+                  "every method finished there).", ""]
+    return lines
+
+
+def _poi_lines(w: _Writer, agg: _Aggregate, winner: str, others: Sequence[str]) -> list[str]:
+    rows = []
+    for other in others:
+        if winner in agg.matrices and other in agg.matrices:
+            rows.append((f"{winner} > {other}", _interval(probability_of_improvement(
+                agg.matrices[winner], agg.matrices[other], reps=w.reps, seed=w.seed),
+                percent=False)))
+    if not rows:
+        return []
+    return ["Probability of improvement P(X > Y) (rliable; a run of X beats a run of Y on a "
+            "game, averaged over games), with 95 % CIs:", "",
+            *_table(("X > Y", "P(X > Y) [95 % CI]"), rows)]
+
+
+def _norm_axis_label(w: _Writer, agg: _Aggregate) -> str:
+    if not agg.percent:
+        return "raw score, IQM"
+    kinds = sorted({w.references[g].kind for g in agg.games})
+    return f"{'/'.join(kinds)}-normalised score, IQM (%)"
+
+
+def _iqm_bars(ax: Any, names: Sequence[str], agg: _Aggregate, colours: Sequence[str]) -> None:
+    scale = 100.0 if agg.percent else 1.0
+    x = np.arange(len(names))
+    points = np.array([agg.iqm.get(n, (np.nan,) * 3) for n in names], dtype=np.float64)
+    heights = points[:, 0] * scale
+    yerr = np.abs(np.vstack([points[:, 0] - points[:, 1], points[:, 2] - points[:, 0]])) * scale
+    ax.bar(x, np.nan_to_num(heights), yerr=yerr, color=colours, capsize=5,
+           error_kw={"elinewidth": 1.2})
+    ax.set_xticks(x, names)
+    ax.axhline(0.0, color="black", linewidth=0.8)
+
+
+# -- Table 1: imitation --------------------------------------------------------------------------
+
+
+def _imitation(w: _Writer, runs: list[Run]) -> list[str]:
+    groups = _groups(runs, lambda r: r.method)
+    methods = _ordered(groups, _METHOD_ORDER["imitation"])
+    agg = _aggregate(w, groups)
+    envs = sorted({r.env_id for rs in groups.values() for r in rs})
+    alignment = {m: _mean_std([r.result["eval"]["mean_alignment"] for r in groups[m]
+                               if "mean_alignment" in r.result["eval"]]) for m in methods}
+
+    rows = []
+    for m in methods:
+        point, lo, hi = agg.iqm.get(m, (math.nan,) * 3)
+        rows.append((m, len(groups[m]), *alignment[m], point, lo, hi,
+                     "normalised" if agg.percent else "raw"))
+    w.csv(FILES["imitation"], ("method", "runs", "alignment_mean", "alignment_std",
+                               "score_iqm", "score_ci_lo", "score_ci_hi", "score"), rows)
+
+    fig = _figure(10, 4.2)
+    left, right = fig.subplots(1, 2)
+    x = np.arange(len(methods))
+    colours = [_colour(m) for m in methods]
+    means = np.array([alignment[m][0] for m in methods])
+    stds = np.array([alignment[m][1] for m in methods])
+    left.bar(x, np.nan_to_num(means), yerr=stds, color=colours, capsize=5)
+    left.set_xticks(x, methods)
+    left.set_ylabel("alignment score")
+    left.set_title("Alignment with the demo (mean ± std over runs)")
+    _iqm_bars(right, methods, agg, colours)
+    right.set_ylabel(_norm_axis_label(w, agg))
+    right.set_title("Score (IQM, 95 % bootstrap CI)")
+    paper = [(i, PAPER_TABLE1[m]) for i, m in enumerate(methods) if m in PAPER_TABLE1]
+    if paper:
+        marker = {"marker": "D", "facecolors": "none", "edgecolors": "black", "zorder": 3,
+                  "label": "paper (Atari)"}
+        left.scatter([i for i, _ in paper], [p[0] for _, p in paper], **marker)
+        right.scatter([i for i, _ in paper], [100 * p[1] for _, p in paper], **marker)
+        left.legend(loc="upper left")
+    fig.suptitle("Table 1 — Imitation: BC, GAIL, SQIL, RAPL-SQIL")
+    w.png(fig, FILES["imitation"])
+
+    labels = _game_labels(envs)
+    header = ("method", "alignment (mean ± std)", "score IQM [95 % CI]",
+              *[f"{labels[e]} return" for e in envs], "paper alignment", "paper HNS (Atari)")
+    table = []
+    for m in methods:
+        per_env = []
+        for e in envs:
+            scores = [r.score for r in groups[m] if r.env_id == e]
+            per_env.append(_num(float(np.mean(scores)), 1) if scores else "–")
+        paper_align, paper_hns = PAPER_TABLE1.get(m, (None, None))
+        a_mean, a_std = alignment[m]
+        table.append((m, f"{_num(a_mean, 3)} ± {_num(a_std, 3)}" if math.isfinite(a_mean) else "–",
+                      _interval(agg.iqm.get(m), agg.percent), *per_env,
+                      _num(paper_align) if paper_align is not None else "–",
+                      _pct(paper_hns) if paper_hns is not None else "–"))
+    lines = ["Alignment: each run's mean alignment of its evaluation episodes with the demo, "
+             "mean ± sample std over all runs (every env and seed). Per-env returns: mean "
+             "over seeds of the final evaluation's mean return (raw).", "",
+             *_aggregate_lines(w, agg), *_table(header, table)]
+    return lines + _poi_lines(w, agg, "RAPL-SQIL", [m for m in methods if m != "RAPL-SQIL"])
+
+
+# -- Fig. 2: relative performance per game ----------------------------------------------------
+
+
+def _relative(rapl: Sequence[float], a2c: Sequence[float]) -> tuple[float, float]:
+    """(S_R − S_A)/|S_A| and its error bar, the standard error of S_R over seeds / |S_A|."""
+    from routine_gym.metrics import relative_performance
+
+    s_a = float(np.mean(a2c))
+    try:
+        value = relative_performance(float(np.mean(rapl)), s_a)
+    except ValueError:
+        return math.nan, math.nan
+    return value, _standard_error(rapl) / abs(s_a)
+
+
+def _rl(w: _Writer, runs: list[Run]) -> list[str]:
+    groups = _groups(runs, lambda r: r.method)
+    a2c, rapl = groups.get("A2C", []), groups.get("RAPL-A2C", [])
+    games = sorted({r.env_id for r in a2c} & {r.env_id for r in rapl})
+    rows = []
+    for g in games:
+        s_a = [r.score for r in a2c if r.env_id == g]
+        s_r = [r.score for r in rapl if r.env_id == g]
+        rel, err = _relative(s_r, s_a)
+        rows.append((g, len(s_a), len(s_r), float(np.mean(s_a)), float(np.mean(s_r)),
+                     100 * rel, 100 * err))
+    rows.sort(key=lambda row: -row[5] if math.isfinite(row[5]) else math.inf)
+    w.csv(FILES["rl"], ("env_id", "runs_a2c", "runs_rapl", "S_A", "S_R",
+                        "relative_performance_pct", "error_pct"), rows)
+    better = sum(1 for row in rows if row[4] >= row[3])
+    undefined = [row[0] for row in rows if not math.isfinite(row[5])]
+
+    labels = _game_labels(games)
+    fig = _figure(max(7.0, 0.45 * len(rows) + 2.5), 4.5)
+    ax = fig.subplots()
+    x = np.arange(len(rows))
+    ax.bar(x, [np.nan_to_num(row[5]) for row in rows], yerr=[row[6] for row in rows],
+           color=COLOURS["RAPL-A2C"], capsize=4)
+    ax.axhline(0.0, color="black", linewidth=0.8)
+    ax.set_xticks(x, [labels[row[0]] for row in rows], rotation=45 if len(rows) > 6 else 0,
+                  ha="right" if len(rows) > 6 else "center")
+    ax.set_ylabel("relative performance (S_R − S_A)/|S_A| (%)")
+    ax.set_xlabel("game (error bar: standard error of S_R over seeds / |S_A|)")
+    ax.set_title(f"Fig. 2 — RAPL-A2C over A2C: same or better on {better} of {len(rows)} "
+                 "games")
+    w.png(fig, FILES["rl"])
+
+    agg = _aggregate(w, {m: groups[m] for m in ("A2C", "RAPL-A2C") if m in groups})
+    table = [(g, n_a, n_r, _num(s_a), _num(s_r), _pct(rel / 100), _pct(err / 100))
+             for g, n_a, n_r, s_a, s_r, rel, err in rows]
+    lines = ["S = mean over seeds of the final evaluation's mean return (raw). Relative "
+             "performance (S_R − S_A)/|S_A| of RAPL-A2C (R) over A2C (A); ± is the standard "
+             "error of S_R over seeds divided by |S_A| (A2C's own spread is not in it).", "",
+             *_table(("game", "A2C runs", "RAPL runs", "S_A", "S_R", "relative", "±"), table),
+             f"**RAPL-A2C same or better than A2C (S_R ≥ S_A) on {better} of {len(rows)} "
+             "games** (paper: same or better on 25 of 33 Atari games).", "",
+             *([f"The relative performance is undefined where S_A = 0 ({', '.join(undefined)}): "
+                "no bar there.", ""] if undefined else []),
+             *_aggregate_lines(w, agg),
+             *_table(("method", "IQM [95 % CI]"),
+                     [(m, _interval(agg.iqm.get(m), agg.percent)) for m in agg.iqm])]
+    return lines + _poi_lines(w, agg, "RAPL-A2C", ["A2C"])
+
+
+# -- Fig. 3: training curves ---------------------------------------------------------------------
+
+
+def _curve_folder(run: Run) -> Path:
+    run_dir = run.result.get("run_dir")
+    if run_dir and (run.folder / run_dir).is_dir():
+        return run.folder / run_dir
+    found = sorted(run.folder.glob("*/events.out.tfevents.*"))
+    return found[0].parent if found else run.folder / (run_dir or "")
+
+
+def _curves(w: _Writer, runs: list[Run]) -> list[str]:
+    groups = _groups(runs, lambda r: r.method)
+    methods = _ordered(groups, _METHOD_ORDER["curves"])
+    games = sorted({r.env_id for rs in groups.values() for r in rs})
+    curves: dict[tuple[str, str], tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
+    no_log = []
+    for g in games:
+        for m in methods:
+            group = [r for r in groups[m] if r.env_id == g]
+            if not group:
+                continue
+            # One grid per game and method: the budget of its runs (the manifest's steps).
+            total = max(r.steps for r in group)
+            binned = []
+            for run in group:
+                steps, returns = read_episodic_returns(_curve_folder(run))
+                if steps.size == 0:
+                    no_log.append(run.describe())
+                    continue
+                x, values = bin_curve(steps, returns, total or max(int(steps.max()), 1))
+                binned.append(values)
+            if binned:
+                values = np.vstack(binned)
+                count = np.sum(np.isfinite(values), axis=0)
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN leading bins
+                    mean = np.nanmean(values, axis=0)
+                    std = np.where(count > 1, np.nanstd(values, axis=0, ddof=1), 0.0)
+                curves[g, m] = (x, mean, np.where(count > 0, std, np.nan), count)
+    w.csv(FILES["curves"], ("env_id", "method", "step", "mean_return", "std_return", "runs"),
+          [(g, m, float(x[i]), mean[i], std[i], int(count[i]))
+           for (g, m), (x, mean, std, count) in curves.items() for i in range(len(x))])
+
+    plotted = [g for g in games if any((g, m) in curves for m in methods)]
+    labels = _game_labels(games)
+    cols = min(3, max(1, len(plotted)))
+    rows_n = max(1, math.ceil(len(plotted) / cols))
+    width = max(6.5, 4.4 * cols)
+    fig = _figure(width, 3.3 * rows_n + 0.9)
+    axes = np.atleast_1d(fig.subplots(rows_n, cols, squeeze=False)).ravel()
+    for ax, g in zip(axes, plotted, strict=False):
+        for m in methods:
+            if (g, m) not in curves:
+                continue
+            x, mean, std, _ = curves[g, m]
+            ax.plot(x, mean, color=_colour(m), label=m, linewidth=1.6)
+            ax.fill_between(x, mean - std, mean + std, color=_colour(m), alpha=0.18,
+                            linewidth=0)
+        ax.set_title(labels[g])
+        ax.set_xlabel("agent steps")
+        ax.set_ylabel("episodic return")
+        ax.ticklabel_format(axis="x", style="sci", scilimits=(0, 0))
+    for ax in axes[len(plotted):]:
+        ax.set_visible(False)
+    fig.legend(handles=[_legend_line(m) for m in methods], loc="outside lower center",
+               ncols=min(len(methods), 5 if width >= 9 else 3))
+    fig.suptitle("Fig. 3 — Training curves (mean ± std over seeds)")
+    w.png(fig, FILES["curves"])
+
+    agg = _aggregate(w, groups)
+    lines = [f"Curves: each run's training episodes (`{RETURN_TAG}`) averaged in "
+             f"{CURVE_BINS} equal step bins from 0 to its budget (an empty bin carries the "
+             "last value forward), then mean ± sample std over seeds.", ""]
+    if no_log:
+        lines += [f"No TensorBoard returns in: {', '.join(no_log)}.", ""]
+    lines += [*_aggregate_lines(w, agg),
+              *_table(("method", "IQM [95 % CI]"),
+                      [(m, _interval(agg.iqm.get(m), agg.percent)) for m in methods
+                       if m in agg.iqm])]
+    return lines + _poi_lines(w, agg, "RAPL-A2C", [m for m in methods if m != "RAPL-A2C"])
+
+
+def _legend_line(method: str) -> Any:
+    from matplotlib.lines import Line2D
+
+    return Line2D([], [], color=_colour(method), linewidth=2, label=method)
+
+
+# -- Fig. 4: CoinRun -----------------------------------------------------------------------------
+
+
+def _level_score(run: Run, levels: str) -> float | None:
+    if levels == "easy":
+        return run.score
+    evaluation = (run.result.get("evals") or {}).get(levels)
+    return None if evaluation is None else float(evaluation["mean_return"])
+
+
+def _coinrun(w: _Writer, runs: list[Run]) -> list[str]:
+    groups = _groups(runs, lambda r: r.method)
+    methods = _ordered(groups, _METHOD_ORDER["coinrun"])
+    envs = sorted({r.env_id for rs in groups.values() for r in rs})
+    stats = {}
+    for e in envs:
+        for m in methods:
+            for levels, _ in _COINRUN_LEVELS:
+                scores = [s for r in groups[m] if r.env_id == e
+                          and (s := _level_score(r, levels)) is not None]
+                if scores:
+                    stats[e, m, levels] = (*_mean_std(scores), len(scores))
+    w.csv(FILES["coinrun"], ("env_id", "method", "levels", "mean_return", "std_return", "runs"),
+          [(e, m, levels, *values) for (e, m, levels), values in stats.items()])
+
+    fig = _figure(max(5.5, 4.5 * len(envs)), 4.2)
+    axes = np.atleast_1d(fig.subplots(1, max(1, len(envs)), squeeze=False)).ravel()
+    width = 0.8 / max(1, len(methods))
+    for ax, e in zip(axes, envs, strict=False):
+        x = np.arange(len(_COINRUN_LEVELS))
+        for i, m in enumerate(methods):
+            values = [stats.get((e, m, levels), (math.nan, math.nan, 0))
+                      for levels, _ in _COINRUN_LEVELS]
+            ax.bar(x + (i - (len(methods) - 1) / 2) * width, [np.nan_to_num(v[0]) for v in values],
+                   width, yerr=[v[1] for v in values], color=_colour(m), label=m, capsize=4)
+        ax.set_xticks(x, [name for _, name in _COINRUN_LEVELS])
+        ax.set_ylabel("return (mean ± std over seeds)")
+        ax.set_title(_game_labels(envs)[e])
+        ax.legend()
+    fig.suptitle("Fig. 4 — CoinRun: training levels, unseen easy and hard levels")
+    w.png(fig, FILES["coinrun"])
+
+    table = []
+    for e in envs:
+        for m in methods:
+            cells = []
+            for levels, _ in _COINRUN_LEVELS:
+                mean, std, n = stats.get((e, m, levels), (math.nan, math.nan, 0))
+                cells.append(f"{_num(mean)} ± {_num(std)} (n={n})" if n else "–")
+            table.append((e, m, *cells))
+    return ["Raw returns (CoinRun scores 10 for a finished level), mean ± sample std over "
+            "seeds: `train` is the 100 training levels, `unseen easy` the final evaluation, "
+            "`hard` unseen hard levels.", "",
+            *_table(("env", "method", *[name for _, name in _COINRUN_LEVELS]), table)]
+
+
+# -- Fig. 5: scalability -------------------------------------------------------------------------
+
+
+def _scalability(w: _Writer, runs: list[Run]) -> list[str]:
+    from routine_gym.metrics import relative_performance
+
+    a2c = _groups(runs, lambda r: r.method if r.method == "A2C" and not r.variant else None)
+    baseline = {}
+    for g in sorted({r.env_id for r in a2c.get("A2C", [])}):
+        s_a = float(np.mean([r.score for r in a2c["A2C"] if r.env_id == g]))
+        if s_a != 0.0:
+            baseline[g] = s_a
+
+    def label(run: Run) -> str | None:
+        if run.method == "A2C" or "K" not in run.variant:
+            return None
+        return json.dumps([run.method, int(run.variant["K"]), int(run.variant["min_length"])])
+
+    points = []
+    for name, group in _groups(runs, label).items():
+        method, k, length = json.loads(name)
+        per_seed: dict[int, list[float]] = {}
+        for r in group:
+            if r.env_id in baseline:
+                per_seed.setdefault(r.seed, []).append(
+                    relative_performance(r.score, baseline[r.env_id]))
+        if per_seed:
+            seed_means = [float(np.mean(v)) for v in per_seed.values()]
+            games = len({r.env_id for r in group if r.env_id in baseline})
+            points.append((method, k, length, games, len(seed_means),
+                           100 * float(np.mean(seed_means)), 100 * _standard_error(seed_means)))
+    order = _METHOD_ORDER["scalability"]
+    points.sort(key=lambda p: (order.index(p[0]) if p[0] in order else len(order), p[1], p[2]))
+    panels = [("K", [p for p in points if p[2] == 2], 1,
+               "K (number of routines), minimum length 2"),
+              ("min_length", [p for p in points if p[1] == 3], 2,
+               "minimum routine length, K = 3")]
+    w.csv(FILES["scalability"], ("panel", "method", "K", "min_length", "games", "seeds",
+                                 "relative_mean_pct", "relative_se_pct"),
+          [(panel, *p) for panel, chosen, _, _ in panels for p in chosen])
+
+    fig = _figure(10, 4.2)
+    for ax, (_, chosen, axis, xlabel) in zip(fig.subplots(1, 2), panels, strict=True):
+        ax.axhline(0.0, color=COLOURS["A2C"], linestyle="--", linewidth=1, label="A2C")
+        values = sorted({p[axis] for p in chosen})
+        for m in _ordered({p[0] for p in chosen}, order):
+            line = sorted((p for p in chosen if p[0] == m), key=lambda p: p[axis])
+            ax.errorbar([p[axis] for p in line], [p[5] for p in line],
+                        yerr=[p[6] for p in line], color=_colour(m), marker="o", capsize=4,
+                        linewidth=1.6, label=m)
+        if values:
+            ax.set_xticks(values)
+        else:
+            why = "no finished A2C reference" if not baseline else "no finished run here"
+            ax.text(0.5, 0.5, why, transform=ax.transAxes, ha="center", va="center")
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("relative performance over A2C (%)\nmean ± s.e. over seeds")
+        ax.legend()
+    fig.suptitle("Fig. 5 — Scalability: more routines (K) and longer routines")
+    w.png(fig, FILES["scalability"])
+
+    lines = ["Relative performance over A2C: for each seed, (S − S_A)/|S_A| averaged over the "
+             "games, with S the run's final mean return and S_A A2C's mean over seeds on that "
+             "game; then mean ± standard error over seeds. Games where A2C scored 0 are left "
+             "out.", ""]
+    if not baseline:
+        lines += ["No finished A2C run (or A2C scored 0 everywhere): no reference.", ""]
+    return lines + _table(("method", "K", "min length", "games", "seeds", "relative ± s.e."),
+                          [(m, k, n, g, s, f"{_num(mean, 1)} % ± {_num(se, 1)}")
+                           for m, k, n, g, s, mean, se in points])
+
+
+# -- Fig. 6: discovery ablations -----------------------------------------------------------------
+
+
+def _ablation(w: _Writer, runs: list[Run]) -> list[str]:
+    def label(run: Run) -> str | None:
+        if run.method == "A2C" and not run.variant:
+            return "A2C"
+        if run.method == "RAPL-A2C" and "discovery" in run.variant:
+            return str(run.variant["discovery"])
+        return None
+
+    groups = _groups(runs, label)
+    names = _ordered(groups, (*ABLATION_VARIANTS, "A2C"))
+    agg = _aggregate(w, groups)
+    w.csv(FILES["ablation"], ("variant", "runs", "score_iqm", "score_ci_lo", "score_ci_hi",
+                              "score"),
+          [(n, len(groups[n]), *agg.iqm.get(n, (math.nan,) * 3),
+            "normalised" if agg.percent else "raw") for n in names])
+
+    fig = _figure(max(5.5, 1.0 * len(names) + 2), 4.2)
+    ax = fig.subplots()
+    _iqm_bars(ax, names, agg, [_colour(n) for n in names])
+    ax.set_xticks(np.arange(len(names)), [n if n != "A2C" else "A2C\n(reference)"
+                                          for n in names])
+    ax.set_ylabel(_norm_axis_label(w, agg))
+    ax.set_xlabel("routine discovery (RAPL-A2C)")
+    ax.set_title("Fig. 6 — Discovery ablations (IQM, 95 % bootstrap CI)")
+    w.png(fig, FILES["ablation"])
+
+    envs = sorted({r.env_id for rs in groups.values() for r in rs})
+    labels = _game_labels(envs)
+    table = []
+    for n in names:
+        per_env = []
+        for e in envs:
+            scores = [r.score for r in groups[n] if r.env_id == e]
+            per_env.append(_num(float(np.mean(scores)), 1) if scores else "–")
+        table.append((n, _interval(agg.iqm.get(n), agg.percent), *per_env))
+    return ["Variants of RAPL-A2C's routine discovery (Full: the paper's; RR, PbE, RF, RP: "
+            "other proposers; ID: the demo of an expert trained a tenth as long), and A2C "
+            "for reference. Per-game columns: mean over seeds of the final mean return "
+            "(raw).", "", *_aggregate_lines(w, agg),
+            *_table(("variant", "IQM [95 % CI]", *[labels[e] for e in envs]), table)]
+
+
+_SECTIONS = {"imitation": _imitation, "rl": _rl, "curves": _curves, "coinrun": _coinrun,
+             "scalability": _scalability, "ablation": _ablation}
+#: Experiments whose aggregates normalise scores (CoinRun is raw; scalability is relative).
+_NORMALISED = ("imitation", "rl", "curves", "ablation")
+
+
+# -- the report ----------------------------------------------------------------------------------
+
+
+def _title(name: str) -> str:
+    from routine_gym.experiments.specs import EXPERIMENTS
+
+    spec = EXPERIMENTS.get(name)
+    return spec.title if spec is not None else name
+
+
+def _status_lines(runs: list[Run]) -> list[str]:
+    unique = list({r.key: r for r in runs}.values())
+    missing = [r for r in unique if not r.finished]
+    line = f"{len(unique) - len(missing)} of {len(unique)} runs finished"
+    if missing:
+        listed = ", ".join(r.describe() for r in missing[:_MAX_MISSING_LISTED])
+        more = len(missing) - _MAX_MISSING_LISTED
+        line += f"; missing: {listed}" + (f" and {more} more" if more > 0 else "")
+    return [line + ".", ""]
+
+
+def _normalisation_lines(references: Mapping[str, Reference]) -> list[str]:
+    rows = []
+    for env_id, ref in sorted(references.items()):
+        kind = {"human": "human-normalised (published table)",
+                "demo": "demo-normalised", "raw": "raw"}[ref.kind]
+        rows.append((env_id, kind, _num(ref.random) if ref.random is not None else "–",
+                     _num(ref.top) if ref.top is not None else "–", ref.note or ""))
+    return ["## Normalisation", "",
+            "Normalised score per game: `(score − random)/(reference − random)`. Atari games "
+            "(a key in `routine_gym.metrics.HUMAN_RANDOM_SCORES`) are human-normalised "
+            "(reference: the human score); other games are demo-normalised (reference: the "
+            "best episode of the shipped demo; random: the uniformly random policy's mean "
+            f"over {REFERENCE_EPISODES} episodes from seed {REFERENCE_SEED}); a game with "
+            "neither keeps its raw score and is left out of the aggregates. Cached in "
+            "`reference_scores.json`.", "",
+            *_table(("env", "normalisation", "random", "reference", "note"), rows)]
+
+
+def write_report(out: str | Path, *, reps: int = 2000, seed: int = 0) -> list[Path]:
+    """Aggregate the sweep in `out` and write `out/report/` (see the module docstring).
+
+    Args:
+        out: the folder `routine-gym experiment run --out` wrote.
+        reps: bootstrap resamples of each confidence interval.
+        seed: seed of the resampling (the same seed, the same intervals).
+
+    Returns:
+        The paths written: each experiment's PNG and CSV, `reference_scores.json`, and
+        `report.md` (last).
+
+    Raises:
+        UsageError: `out` does not exist or holds no manifest of the six experiments.
+    """
+    out = Path(out)
+    if not out.is_dir():
+        raise UsageError(f"{out}: no such sweep folder (write one with `routine-gym "
+                         "experiment run --out`)")
+    results: dict[str, Mapping[str, Any] | None] = {}
+    manifests = {name: load_runs(out, name, results) for name in EXPERIMENT_NAMES}
+    if all(m is None for m in manifests.values()):
+        raise UsageError(f"{out}: not a sweep folder: none of "
+                         f"{', '.join(n + '.json' for n in EXPERIMENT_NAMES)} is there")
+    folder = out / "report"
+    envs = {r.env_id for name in _NORMALISED if manifests[name]
+            for r in manifests[name].runs if r.role == "main" and r.finished}
+    references = reference_scores(envs, folder / "reference_scores.json")
+    w = _Writer(folder, references, reps, seed)
+    w.written.append(folder / "reference_scores.json")
+
+    budgets = {name: m.budget for name, m in manifests.items() if m is not None}
+    finished = [r["finished"] for r in results.values() if r and r.get("finished")]
+    budget = (next(iter(budgets.values())) if len(set(budgets.values())) == 1
+              else ", ".join(f"{n}: {b}" for n, b in budgets.items()))
+    lines = [f"# routine-gym report: `{out}`", "",
+             f"Budget: **{budget}**. Latest finished run: "
+             f"{max(finished) if finished else 'none'}.", "",
+             "Scores are each run's final evaluation (mean return over its evaluation "
+             "episodes); aggregates are rliable's IQM with 95 % stratified-bootstrap CIs "
+             f"({reps} resamples, seed {seed}) and its probability of improvement.", ""]
+    for name in EXPERIMENT_NAMES:
+        lines += [f"## {_HEADINGS[name]} — {_title(name)} (`{name}`)", ""]
+        manifest = manifests[name]
+        if manifest is None:
+            lines += [f"not run (no `{name}.json` in the sweep folder).", ""]
+            continue
+        lines += _status_lines(manifest.runs)
+        main = [r for r in manifest.runs if r.role == "main"]
+        if not any(r.finished for r in main):
+            lines += ["No finished run: no figure.", ""]
+            continue
+        lines += [f"Figure: `{FILES[name]}.png`, data: `{FILES[name]}.csv`.", ""]
+        lines += _SECTIONS[name](w, main)
+    lines += _normalisation_lines(references)
+    atomic_write_text(folder / "report.md", "\n".join(lines).rstrip() + "\n")
+    w.written.append(folder / "report.md")
+    return w.written

@@ -1,0 +1,376 @@
+"""The paper's six experiments as named, versioned specs with three budgets (SPEC §6, §8).
+
+An experiment is a list of runs. A run is one process of a script in `algos/` with its flags
+(`RunSpec`); its key is a hash of the script and the flags, so the same run in two experiments
+(A2C on Breakout is in `rl`, `curves` and `scalability`) is one run, trained once. Each entry of
+an experiment adds the labels the report groups by (method, env, seed, variant).
+
+Budgets:
+
+- `smoke`: seconds a run, one seed, one game (the tests).
+- `cpu`: what a 2-core machine finishes in hours: MinAtar's five games (and MiniQbert for
+  imitation and RL, CoinRun for its own experiment) at 10^6 agent steps, 3 seeds.
+- `paper`: the paper's settings: 10^7 agent steps, 5 seeds, the authors' 30 Atari games, each
+  game's demo from an A2C expert trained first (the shipped demo where there is one).
+
+Demos: a game with a shipped demo (`routine_gym.demo.DEMO_SUITE`, MiniQbert's scripted one) uses
+it; any other game first trains an A2C expert with `--record-demo` (a run of role `expert`) and
+every run of that game reads the demo it recorded. The ablation's ID variant always reads a
+demo recorded by an expert trained a tenth as long as the one behind the full model's demo.
+A flag value `@run:KEY/FILE` names a file in the folder of run KEY, `@self/FILE` one in the
+run's own folder; the sweep resolves both, and they keep keys independent of `--out`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+__all__ = [
+    "BUDGETS",
+    "EXPERIMENTS",
+    "Budget",
+    "Entry",
+    "Experiment",
+    "RunSpec",
+    "build",
+    "count_runs",
+]
+
+MINATAR = tuple(f"MinAtar/{game}-v1" for game in
+                ("Asterix", "Breakout", "Freeway", "Seaquest", "SpaceInvaders"))
+#: The authors' 30 Atari games (their `launch.py`, SPEC §8).
+PAPER_GAMES = tuple(f"ALE/{game}-v5" for game in (
+    "Amidar Hero Alien Qbert MsPacman Atlantis BankHeist BattleZone BeamRider Bowling Boxing "
+    "Breakout Centipede Seaquest DemonAttack DoubleDunk Freeway Gopher Gravitar Pitfall "
+    "PrivateEye Pong RoadRunner Robotank StarGunner Phoenix Frostbite Jamesbond TimePilot "
+    "WizardOfWor").split())
+COINRUN = "procgen/CoinRun-v0"
+#: Envs whose demo ships with routine-gym (besides `DEMO_SUITE`).
+BUILT_IN_DEMOS = ("MiniQbert-v0",)
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One process of `algos/{script}.py` with `flags` (without the sweep's own: run folder,
+    checkpoints, threads, CUDA). `steps` is its budget in agent steps (progress and ETA);
+    `needs` are keys of runs that must finish first."""
+
+    script: str
+    flags: tuple[tuple[str, Any], ...]
+    steps: int
+    needs: tuple[str, ...] = ()
+
+    @property
+    def key(self) -> str:
+        """12 hex digits of the SHA-256 of the script and its flags."""
+        blob = json.dumps({"script": self.script, "flags": dict(self.flags)}, sort_keys=True)
+        return hashlib.sha256(blob.encode()).hexdigest()[:12]
+
+    def config(self) -> dict[str, Any]:
+        return {"key": self.key, "script": self.script, "flags": dict(self.flags),
+                "needs": list(self.needs), "steps": self.steps}
+
+
+@dataclass(frozen=True)
+class Entry:
+    """A run of an experiment and the labels the report groups it by."""
+
+    run: RunSpec
+    method: str
+    env_id: str
+    seed: int
+    variant: dict[str, Any] = field(default_factory=dict)
+    role: str = "main"
+
+    def manifest(self) -> dict[str, Any]:
+        return {"key": self.run.key, "script": self.run.script, "method": self.method,
+                "env_id": self.env_id, "seed": self.seed, "variant": dict(self.variant),
+                "role": self.role, "steps": self.run.steps}
+
+
+@dataclass(frozen=True)
+class Budget:
+    """The sizes of one budget; every experiment reads the fields it needs."""
+
+    name: str
+    description: str
+    seeds: int
+    games: tuple[str, ...]  # the RL experiments (rl adds MiniQbert where listed)
+    rl_games: tuple[str, ...]
+    imitation_games: tuple[str, ...]
+    steps: int  # agent steps of an RL run
+    coinrun_steps: int
+    sqil_steps: int
+    gail_steps: int
+    bc_steps: int  # gradient steps
+    expert_steps: int  # an expert for a game without a shipped demo
+    shipped_expert_steps: int  # what the shipped demos' experts trained for (ID: a tenth)
+    eval_episodes: int
+    scalability_k: tuple[int, ...]
+    scalability_lengths: tuple[int, ...]
+    demo_episodes: int = 10
+    num_envs: int | None = None  # None: each script's default (16)
+    compile_flags: tuple[tuple[str, Any], ...] = ()  # CompILE's own training, when not default
+
+    def checkpoint_every(self, steps: int) -> int:
+        return max(steps // 5, 1)
+
+
+BUDGETS: dict[str, Budget] = {
+    "smoke": Budget(
+        name="smoke", description="seconds a run, 1 seed, 1 game (the tests)", seeds=1,
+        games=("MinAtar/Freeway-v1",), rl_games=("MinAtar/Freeway-v1",),
+        imitation_games=("MiniQbert-v0",), steps=1_000, coinrun_steps=160, sqil_steps=500,
+        gail_steps=512, bc_steps=50, expert_steps=1_000, shipped_expert_steps=5_000,
+        eval_episodes=1, scalability_k=(1, 3), scalability_lengths=(2, 4), demo_episodes=1,
+        num_envs=4, compile_flags=(("compile-iterations", 20), ("compile-option-steps", 20))),
+    "cpu": Budget(
+        name="cpu",
+        description="MinAtar's five games (and MiniQbert, CoinRun) at 10^6 agent steps, "
+                    "3 seeds: hours on a 2-core CPU",
+        seeds=3, games=MINATAR, rl_games=(*MINATAR, "MiniQbert-v0"),
+        imitation_games=(*MINATAR, "MiniQbert-v0"), steps=1_000_000, coinrun_steps=500_000,
+        sqil_steps=100_000, gail_steps=500_000, bc_steps=10_000, expert_steps=5_000_000,
+        shipped_expert_steps=5_000_000, eval_episodes=30, scalability_k=(1, 3, 6),
+        scalability_lengths=(2, 5)),
+    "paper": Budget(
+        name="paper",
+        description="the paper's settings: 30 Atari games, 10^7 agent steps, 5 seeds "
+                    "(a cluster)",
+        seeds=5, games=PAPER_GAMES, rl_games=PAPER_GAMES, imitation_games=PAPER_GAMES,
+        steps=10_000_000, coinrun_steps=10_000_000, sqil_steps=1_000_000,
+        gail_steps=10_000_000, bc_steps=100_000, expert_steps=10_000_000,
+        shipped_expert_steps=10_000_000, eval_episodes=100, scalability_k=(1, 3, 5, 10),
+        scalability_lengths=(2, 4, 6, 8)),
+}
+
+
+def _has_shipped_demo(env_id: str) -> bool:
+    from routine_gym.demo import DEMO_SUITE
+
+    return env_id in DEMO_SUITE or env_id in BUILT_IN_DEMOS
+
+
+#: Scripts that step several envs (`--num-envs`), and BC's budget flag.
+VECTOR_SCRIPTS = ("rapl_a2c", "option_critic", "compile_a2c", "gail")
+STEPS_FLAG = {"bc": "gradient-steps"}
+
+
+def _common(budget: Budget, script: str, env_id: str, seed: int,
+            steps: int) -> list[tuple[str, Any]]:
+    flags: list[tuple[str, Any]] = [("env-id", env_id), ("seed", seed),
+                                    (STEPS_FLAG.get(script, "total-timesteps"), steps),
+                                    ("eval-episodes", budget.eval_episodes)]
+    if budget.num_envs is not None and script in VECTOR_SCRIPTS:
+        flags.append(("num-envs", budget.num_envs))
+    return flags
+
+
+def expert(budget: Budget, env_id: str, steps: int) -> Entry:
+    """An A2C expert of `env_id` trained for `steps` that records a demo (`demo.npz` in its
+    folder) of the best of the budget's demo episodes."""
+    flags = [*_common(budget, "rapl_a2c", env_id, 1, steps), ("mode", "a2c"),
+             ("record-demo", "@self/demo.npz"), ("demo-episodes", budget.demo_episodes),
+             ("checkpoint-every", budget.checkpoint_every(steps))]
+    return Entry(RunSpec("rapl_a2c", tuple(flags), steps), "A2C expert", env_id, 1,
+                 {"expert_steps": steps}, role="expert")
+
+
+class _Builder:
+    """Collects an experiment's entries; the experts behind demos are added once each."""
+
+    def __init__(self, budget: Budget) -> None:
+        self.budget = budget
+        self.entries: dict[tuple[str, str, int, str], Entry] = {}
+
+    def add(self, entry: Entry) -> Entry:
+        label = (entry.run.key, entry.method, entry.seed, json.dumps(entry.variant, sort_keys=True))
+        self.entries.setdefault(label, entry)
+        return entry
+
+    def demo(self, env_id: str, expert_steps: int | None = None) -> tuple[list, tuple[str, ...]]:
+        """The `--demo` flag and the needed run for `env_id`: none for a shipped demo (the
+        scripts' default), else an expert trained for `expert_steps` (the budget's)."""
+        if expert_steps is None and _has_shipped_demo(env_id):
+            return [], ()
+        steps = expert_steps if expert_steps is not None else self.budget.expert_steps
+        run = self.add(expert(self.budget, env_id, steps)).run
+        return [("demo", f"@run:{run.key}/demo.npz")], (run.key,)
+
+    def run(self, script: str, method: str, env_id: str, seed: int, steps: int,
+            extra: Sequence[tuple[str, Any]] = (), variant: dict | None = None,
+            demo: bool = True, expert_steps: int | None = None) -> Entry:
+        flags = _common(self.budget, script, env_id, seed, steps) + list(extra)
+        needs: tuple[str, ...] = ()
+        if demo:
+            demo_flags, needs = self.demo(env_id, expert_steps)
+            flags += demo_flags
+        flags.append(("checkpoint-every", self.budget.checkpoint_every(steps)))
+        spec = RunSpec(script, tuple(flags), steps, needs)
+        return self.add(Entry(spec, method, env_id, seed, dict(variant or {})))
+
+    def a2c(self, method: str, env_id: str, seed: int, variant: dict | None = None,
+            k: int = 3, min_length: int = 2, proposer: str = "full",
+            expert_steps: int | None = None, steps: int | None = None,
+            extra: Sequence[tuple[str, Any]] = ()) -> Entry:
+        """A `rapl_a2c.py` run; flags at their defaults are left out, so the same run made by
+        two experiments has one key."""
+        mode = {"A2C": "a2c", "RAPL-A2C": "rapl", "MacroAction": "macro"}[method]
+        flags: list[tuple[str, Any]] = [("mode", mode), *extra]
+        if k != 3:
+            flags.append(("num-routines", k))
+        if min_length != 2:
+            flags.append(("min-routine-length", min_length))
+        if proposer != "full":
+            flags.append(("proposer", proposer))
+        return self.run("rapl_a2c", method, env_id, seed,
+                        steps if steps is not None else self.budget.steps, flags, variant,
+                        demo=mode != "a2c", expert_steps=expert_steps)
+
+    def seeds(self) -> range:
+        return range(1, self.budget.seeds + 1)
+
+
+def _imitation(b: _Builder) -> None:
+    budget = b.budget
+    for env_id in budget.imitation_games:
+        for seed in b.seeds():
+            b.run("bc", "BC", env_id, seed, budget.bc_steps)
+            b.run("gail", "GAIL", env_id, seed, budget.gail_steps)
+            b.run("rapl_sqil", "SQIL", env_id, seed, budget.sqil_steps, [("num-routines", 0)])
+            b.run("rapl_sqil", "RAPL-SQIL", env_id, seed, budget.sqil_steps)
+
+
+def _rl(b: _Builder) -> None:
+    for env_id in b.budget.rl_games:
+        for seed in b.seeds():
+            b.a2c("A2C", env_id, seed)
+            b.a2c("RAPL-A2C", env_id, seed)
+
+
+def _curves(b: _Builder) -> None:
+    budget = b.budget
+    for env_id in budget.games:
+        for seed in b.seeds():
+            b.a2c("A2C", env_id, seed)
+            b.a2c("MacroAction", env_id, seed)
+            b.run("option_critic", "OptionCritic", env_id, seed, budget.steps, demo=False)
+            b.run("compile_a2c", "CompILE", env_id, seed, budget.steps, budget.compile_flags)
+            b.a2c("RAPL-A2C", env_id, seed)
+
+
+def _coinrun(b: _Builder) -> None:
+    extra = [("extra-evals", ("train", "hard"))]
+    for seed in b.seeds():
+        for method in ("A2C", "RAPL-A2C"):
+            b.a2c(method, COINRUN, seed, steps=b.budget.coinrun_steps, extra=extra)
+
+
+def _scalability(b: _Builder) -> None:
+    budget = b.budget
+    settings = [(k, 2) for k in budget.scalability_k]
+    settings += [(3, length) for length in budget.scalability_lengths if length != 2]
+    for env_id in budget.games:
+        for seed in b.seeds():
+            b.a2c("A2C", env_id, seed)
+            for k, length in settings:
+                for method in ("RAPL-A2C", "MacroAction"):
+                    b.a2c(method, env_id, seed, {"K": k, "min_length": length}, k=k,
+                          min_length=length)
+
+
+#: The discovery ablations of the paper and the proposer each one is.
+ABLATIONS = {"Full": "full", "RR": "random", "PbE": "enumerate", "RF": "random-fetch",
+             "RP": "repeat"}
+
+
+def _ablation(b: _Builder) -> None:
+    budget = b.budget
+    for env_id in budget.games:
+        full_steps = budget.shipped_expert_steps if _has_shipped_demo(env_id) else (
+            budget.expert_steps)
+        for seed in b.seeds():
+            b.a2c("A2C", env_id, seed)
+            for name, proposer in ABLATIONS.items():
+                b.a2c("RAPL-A2C", env_id, seed, {"discovery": name}, proposer=proposer)
+            b.a2c("RAPL-A2C", env_id, seed, {"discovery": "ID"},
+                  expert_steps=max(full_steps // 10, 1))
+
+
+@dataclass(frozen=True)
+class Experiment:
+    name: str
+    version: int
+    title: str
+    figure: str
+    builder: Callable[[_Builder], None]
+
+
+EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
+    Experiment("imitation", 1, "Imitation: BC, GAIL, SQIL, RAPL-SQIL (alignment and score)",
+               "Table 1", _imitation),
+    Experiment("rl", 1, "RL: relative performance of RAPL-A2C over A2C per game", "Fig. 2",
+               _rl),
+    Experiment("curves", 1,
+               "Training curves: A2C, MacroAction, OptionCritic, CompILE, RAPL-A2C", "Fig. 3",
+               _curves),
+    Experiment("coinrun", 1, "CoinRun generalisation: train, unseen easy and hard levels",
+               "Fig. 4", _coinrun),
+    Experiment("scalability", 1,
+               "Scalability: more (K) and longer routines, RAPL-A2C against MacroAction",
+               "Fig. 5", _scalability),
+    Experiment("ablation", 1, "Discovery ablations: Full, RR, PbE, RF, ID, RP", "Fig. 6",
+               _ablation),
+)}
+
+
+def build(name: str, budget: str, seeds: Sequence[int] | None = None,
+          envs: Sequence[str] | None = None) -> list[Entry]:
+    """The entries of experiment `name` at `budget`, optionally only some seeds and envs
+    (`envs` filters the games of every part; CoinRun's experiment has one game).
+
+    Raises:
+        UsageError: an unknown experiment, budget, seed or env.
+    """
+    from dataclasses import replace
+
+    from routine_gym.errors import UsageError
+
+    if name not in EXPERIMENTS:
+        raise UsageError(f"unknown experiment {name!r}; choose from {', '.join(EXPERIMENTS)}")
+    if budget not in BUDGETS:
+        raise UsageError(f"unknown budget {budget!r}; choose from {', '.join(BUDGETS)}")
+    sizes = BUDGETS[budget]
+    if envs:
+        known = {*sizes.games, *sizes.rl_games, *sizes.imitation_games, COINRUN}
+        unknown = [e for e in envs if e not in known]
+        if unknown:
+            raise UsageError(f"--envs {unknown[0]} is not a game of the {budget} budget "
+                             f"(its games: {', '.join(sorted(known))})")
+        keep = set(envs)
+        sizes = replace(sizes, games=tuple(g for g in sizes.games if g in keep),
+                        rl_games=tuple(g for g in sizes.rl_games if g in keep),
+                        imitation_games=tuple(g for g in sizes.imitation_games if g in keep))
+    builder = _Builder(sizes)
+    EXPERIMENTS[name].builder(builder)
+    entries = list(builder.entries.values())
+    if name == "coinrun" and envs and COINRUN not in envs:
+        entries = []
+    if seeds:
+        bad = [s for s in seeds if not 1 <= s <= sizes.seeds]
+        if bad:
+            raise UsageError(f"--seeds {bad[0]} is outside the {budget} budget's seeds "
+                             f"1..{sizes.seeds}")
+        entries = [e for e in entries if e.role != "main" or e.seed in set(seeds)]
+    return entries
+
+
+def count_runs(name: str, budget: str) -> tuple[int, int]:
+    """(runs, agent steps) of experiment `name` at `budget`, experts included."""
+    entries = build(name, budget)
+    runs = {e.run.key: e.run.steps for e in entries}
+    return len(runs), sum(runs.values())

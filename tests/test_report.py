@@ -1,0 +1,375 @@
+"""The sweep report (`routine_gym.experiments.report`): a synthetic sweep folder with hand-chosen
+scores and curves, and the tables, CSVs and figures worked out from them by hand."""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.stats
+
+from routine_gym.errors import UsageError
+from routine_gym.experiments import report
+from routine_gym.metrics import iqm
+
+BREAKOUT = "MinAtar/Breakout-v1"  # demo-normalised: random 0, demo 10
+ASTERIX = "MinAtar/Asterix-v1"  # demo-normalised: random 1, demo 21
+ATARI = "ALE/Breakout-v5"  # human-normalised: random 1.7, human 30.5
+RAW = "CartPole-v1"  # no demo, no table: raw
+COINRUN = "procgen/CoinRun-v0"
+DEMOS = {BREAKOUT: 10.0, ASTERIX: 21.0}
+RANDOM = {BREAKOUT: 0.0, ASTERIX: 1.0}
+REPS = 100
+STEPS = 100
+
+IMITATION = {"BC": (0.1, 0.2), "GAIL": (0.2, 0.3), "SQIL": (0.3, 0.4), "RAPL-SQIL": (0.5, 0.6)}
+ABLATION = {"Full": 0.6, "RR": 0.3, "PbE": 0.35, "RF": 0.25, "ID": 0.5, "RP": 0.2}
+# Hand-made training curves of A2C on Breakout: (step, episodic return).
+CURVE_SEED_1 = [(3, 5.0), (4, 7.0), (9, 2.0), (100, 10.0)]
+CURVE_SEED_2 = [(2, 4.0), (50, 8.0)]
+
+
+class Sweep:
+    """Writes a sweep folder as `routine-gym experiment run` leaves it."""
+
+    def __init__(self, out: Path) -> None:
+        self.out = out
+        self.manifests: dict[str, list[dict]] = {}
+
+    def run(self, experiment: str, method: str, env_id: str, seed: int, score: float | None,
+            variant: dict | None = None, eval_extra: dict | None = None,
+            evals: dict | None = None, curve: list | None = None) -> str:
+        """One run; `score=None` leaves it unfinished (no result.json)."""
+        variant = variant or {}
+        blob = json.dumps([experiment, method, env_id, seed, variant], sort_keys=True)
+        key = hashlib.sha256(blob.encode()).hexdigest()[:12]
+        self.manifests.setdefault(experiment, []).append(
+            {"key": key, "script": "rapl_a2c", "method": method, "env_id": env_id,
+             "seed": seed, "variant": variant, "role": "main", "steps": STEPS})
+        folder = self.out / "runs" / key
+        folder.mkdir(parents=True)
+        (folder / "config.json").write_text(json.dumps(
+            {"key": key, "script": "rapl_a2c", "args": {}, "needs": [], "steps": STEPS}))
+        run_dir = f"{env_id.replace('/', '-')}__rapl_a2c__{seed}__1796166756"
+        if curve is not None:
+            from torch.utils.tensorboard import SummaryWriter
+
+            writer = SummaryWriter(str(folder / run_dir))
+            for step, value in curve:
+                writer.add_scalar("charts/episodic_return", value, step)
+            writer.close()
+        if score is not None:
+            summary = {"env_id": env_id, "episodes": 2, "seed": seed + 10_000,
+                       "returns": [score, score], "mean_return": score, "std_return": 0.0,
+                       **(eval_extra or {})}
+            (folder / "result.json").write_text(json.dumps(
+                {"key": key, "run_dir": run_dir, "eval": summary, "evals": evals or {},
+                 "seconds": 1.0, "finished": f"2026-12-0{seed}T10:00:00Z"}))
+        return key
+
+    def write(self, budget: str = "cpu") -> None:
+        for experiment, runs in self.manifests.items():
+            (self.out / f"{experiment}.json").write_text(json.dumps(
+                {"experiment": experiment, "version": 1, "budget": budget,
+                 "description": "test", "runs": runs}))
+
+
+def _patch_references(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """Known demo and random-policy scores; returns the envs the random policy was asked for."""
+    played: list[str] = []
+
+    def random_policy_scores(env_id, episodes, seed):
+        played.append(env_id)
+        return {"mean": RANDOM[env_id]}
+
+    monkeypatch.setattr(report, "demo_score", DEMOS.get)
+    monkeypatch.setattr(report, "random_policy_scores", random_policy_scores)
+    return played
+
+
+def _full_sweep(out: Path) -> tuple[Sweep, str]:
+    sweep = Sweep(out)
+    for method, (score, alignment) in IMITATION.items():
+        for env_id in (ATARI, BREAKOUT, RAW):
+            for seed in (1, 2):
+                v = score + 0.02 * (seed - 1)  # the normalised score
+                raw = {ATARI: 1.7 + 28.8 * v, BREAKOUT: 10 * v, RAW: 100 * v}[env_id]
+                sweep.run("imitation", method, env_id, seed, raw,
+                          eval_extra={"mean_alignment": alignment + 0.02 * (seed - 1)})
+    for env_id, a2c, rapl in ((BREAKOUT, (4, 6), (6, 8)), (ASTERIX, (10, 10), (8, 9))):
+        for seed in (1, 2):
+            sweep.run("rl", "A2C", env_id, seed, a2c[seed - 1])
+            sweep.run("rl", "RAPL-A2C", env_id, seed, rapl[seed - 1])
+    missing = sweep.run("rl", "RAPL-A2C", BREAKOUT, 3, None)
+
+    finals = {"A2C": (4, 6), "MacroAction": (5, 5), "OptionCritic": (3, 3), "CompILE": (1, 3),
+              "RAPL-A2C": (9, 10)}
+    for method, scores in finals.items():
+        for seed in (1, 2):
+            curve = ({1: CURVE_SEED_1, 2: CURVE_SEED_2}[seed] if method == "A2C"
+                     else [(50, scores[seed - 1] - 1.0), (100, float(scores[seed - 1]))])
+            sweep.run("curves", method, BREAKOUT, seed, scores[seed - 1], curve=curve)
+
+    coinrun = {"A2C": ((8, 10), (6, 8), (2, 4)), "RAPL-A2C": ((10, 10), (8, 9), (3, 5))}
+    for method, (train, easy, hard) in coinrun.items():
+        for seed in (1, 2):
+            i = seed - 1
+            sweep.run("coinrun", method, COINRUN, seed, easy[i],
+                      evals={"train": {"mean_return": train[i]}, "hard": {"mean_return": hard[i]}})
+
+    s_a = {BREAKOUT: 5.0, ASTERIX: 10.0}
+    for env_id in (BREAKOUT, ASTERIX):
+        for seed in (1, 2):
+            sweep.run("scalability", "A2C", env_id, seed, {BREAKOUT: (4, 6), ASTERIX: (10, 10)}[
+                env_id][seed - 1])
+            for k, length in ((1, 2), (3, 2), (6, 2), (3, 5)):
+                for method in ("RAPL-A2C", "MacroAction"):
+                    relative = ((0.2 if method == "RAPL-A2C" else -0.1) + 0.05 * (k - 3)
+                                + 0.02 * (length - 2) + 0.2 * (seed - 1))
+                    sweep.run("scalability", method, env_id, seed, s_a[env_id] * (1 + relative),
+                              variant={"K": k, "min_length": length})
+
+    for env_id in (BREAKOUT, ASTERIX):
+        for seed in (1, 2):
+            sweep.run("ablation", "A2C", env_id, seed,
+                      {BREAKOUT: (4, 6), ASTERIX: (10, 10)}[env_id][seed - 1])
+            for variant, value in ABLATION.items():
+                v = value + 0.02 * (seed - 1)
+                sweep.run("ablation", "RAPL-A2C", env_id, seed,
+                          10 * v if env_id == BREAKOUT else 1 + 20 * v,
+                          variant={"discovery": variant})
+    sweep.write()
+    return sweep, missing
+
+
+@pytest.fixture(scope="module")
+def full(tmp_path_factory):
+    """The full synthetic sweep and its report: (out, written paths, key of a missing run)."""
+    out = tmp_path_factory.mktemp("sweep")
+    _, missing = _full_sweep(out)
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        _patch_references(monkeypatch)
+        written = report.write_report(out, reps=REPS, seed=0)
+    return out, written, missing
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_fig2_csv_has_the_relative_performance_per_game(full):
+    out, _, _ = full
+    rows = {r["env_id"]: r for r in _rows(out / "report" / "fig2_rl.csv")}
+    # Breakout: A2C 4, 6 → S_A 5; RAPL 6, 8 → S_R 7: +40 %; s.e. of S_R = 1 → 1/5 = 20 %.
+    assert float(rows[BREAKOUT]["S_A"]) == 5.0 and float(rows[BREAKOUT]["S_R"]) == 7.0
+    assert float(rows[BREAKOUT]["relative_performance_pct"]) == pytest.approx(40.0)
+    assert float(rows[BREAKOUT]["error_pct"]) == pytest.approx(20.0)
+    # Asterix: A2C 10, 10; RAPL 8, 9 → 8.5: −15 %; s.e. 0.5 → 5 %.
+    assert float(rows[ASTERIX]["relative_performance_pct"]) == pytest.approx(-15.0)
+    assert float(rows[ASTERIX]["error_pct"]) == pytest.approx(5.0)
+    # Sorted best first; the unfinished third seed is left out.
+    assert [r["env_id"] for r in _rows(out / "report" / "fig2_rl.csv")] == [BREAKOUT, ASTERIX]
+    assert rows[BREAKOUT]["runs_rapl"] == "2"
+
+
+def test_report_md_counts_games_and_lists_missing_runs(full):
+    out, _, missing = full
+    text = (out / "report" / "report.md").read_text()
+    assert "Budget: **cpu**" in text
+    assert "Latest finished run: 2026-12-02T10:00:00Z" in text
+    assert "same or better than A2C (S_R ≥ S_A) on 1 of 2 games" in text
+    assert "paper: same or better on 25 of 33" in text
+    assert f"8 of 9 runs finished; missing: `{missing}` (RAPL-A2C, {BREAKOUT}, seed 3)" in text
+    # IQM of the normalised final scores of rl (see test_normalised_scores_and_iqm_by_hand).
+    assert "| A2C | 45.0 % [" in text and "| RAPL-A2C | 50.0 % [" in text
+    # The paper's Table 1 numbers sit beside ours.
+    assert "| RAPL-SQIL | 0.610 ± 0.011 |" in text and "| 0.34 | 36.1 % |" in text
+    assert "Normalisation" in text and "raw" in text
+
+
+def test_bin_curve_means_episodes_per_bin_and_carries_forward():
+    x, y = report.bin_curve([s for s, _ in CURVE_SEED_1], [v for _, v in CURVE_SEED_1],
+                            total_steps=100)
+    assert x[:5].tolist() == [2.0, 4.0, 6.0, 8.0, 10.0] and x[-1] == 100.0 and len(x) == 50
+    # (0, 2] has no episode yet; (2, 4] holds 5 and 7; (8, 10] holds 2; then carried to 100.
+    assert math.isnan(y[0])
+    assert y[1:4].tolist() == [6.0, 6.0, 6.0]
+    assert y[4:49].tolist() == [2.0] * 45
+    assert y[49] == 10.0
+
+
+def test_fig3_csv_has_mean_and_std_of_the_binned_curves(full):
+    out, _, _ = full
+    rows = {float(r["step"]): r for r in _rows(out / "report" / "fig3_curves.csv")
+            if r["method"] == "A2C"}
+    assert len(rows) == report.CURVE_BINS
+    # Step 2: only seed 2 has an episode (4). Step 4: seeds 6 and 4. Step 100: 10 and 8.
+    assert (float(rows[2.0]["mean_return"]), rows[2.0]["runs"]) == (4.0, "1")
+    assert float(rows[2.0]["std_return"]) == 0.0
+    assert float(rows[4.0]["mean_return"]) == 5.0
+    assert float(rows[4.0]["std_return"]) == pytest.approx(math.sqrt(2))
+    assert float(rows[50.0]["mean_return"]) == 5.0  # seed 1 carries 2, seed 2 has 8
+    assert float(rows[100.0]["mean_return"]) == 9.0 and rows[100.0]["runs"] == "2"
+
+
+def test_read_episodic_returns_drops_what_a_resumed_run_relogged(tmp_path):
+    from torch.utils.tensorboard import SummaryWriter
+
+    for points in ([(10, 1.0), (20, 2.0), (30, 3.0)], [(20, 5.0), (40, 6.0)]):
+        writer = SummaryWriter(str(tmp_path))
+        for step, value in points:
+            writer.add_scalar("charts/episodic_return", value, step)
+        writer.close()
+    steps, returns = report.read_episodic_returns(tmp_path)
+    assert steps.tolist() == [10, 20, 40] and returns.tolist() == [1.0, 5.0, 6.0]
+
+
+def test_normalised_scores_and_iqm_by_hand(full):
+    out, _, _ = full
+    refs = json.loads((out / "report" / "reference_scores.json").read_text())["envs"]
+    assert refs[BREAKOUT] == {"normalisation": "demo", "random": 0.0, "reference": 10.0,
+                              "score_key": None, "note": ""}
+    assert refs[ATARI]["normalisation"] == "human"
+    assert (refs[ATARI]["random"], refs[ATARI]["reference"]) == (1.7, 30.5)
+    assert refs[RAW]["normalisation"] == "raw"
+    assert report.Reference("demo", 1.0, 21.0).normalise(11.0) == 0.5
+    assert report.Reference("human", 1.7, 30.5, ATARI).normalise(30.5) == pytest.approx(1.0)
+
+    # Imitation: the normalised scores b and b + 0.02 on both normalised games (CartPole is
+    # raw, out of the aggregate); IQM of {b, b, b + .02, b + .02} = b + 0.01.
+    rows = {r["method"]: r for r in _rows(out / "report" / "table1_imitation.csv")}
+    for method, (score, alignment) in IMITATION.items():
+        assert float(rows[method]["score_iqm"]) == pytest.approx(score + 0.01)
+        assert float(rows[method]["score_ci_lo"]) <= float(rows[method]["score_iqm"])
+        assert float(rows[method]["score_iqm"]) <= float(rows[method]["score_ci_hi"])
+        # Alignment over all 6 runs: a three times, a + 0.02 three times.
+        assert float(rows[method]["alignment_mean"]) == pytest.approx(alignment + 0.01)
+        assert float(rows[method]["alignment_std"]) == pytest.approx(0.01 * math.sqrt(6 / 5))
+    # RL: A2C normalised {0.4, 0.6, 0.45, 0.45} → IQM of the middle two 0.45; RAPL-A2C
+    # {0.6, 0.8, 0.35, 0.4} → (0.4 + 0.6)/2 = 0.5.
+    assert iqm([0.4, 0.6, 0.45, 0.45]) == pytest.approx(0.45)
+
+
+def test_iqm_point_is_the_trimmed_mean_inside_a_reproducible_ci():
+    scores = np.random.default_rng(3).normal(size=(5, 4))
+    first = report.iqm_intervals({"m": scores}, reps=REPS, seed=7)["m"]
+    point, lo, hi = first
+    assert point == pytest.approx(scipy.stats.trim_mean(scores, 0.25, axis=None))
+    assert point == pytest.approx(iqm(scores))
+    assert lo <= point <= hi and lo < hi
+    # The same seed gives the same interval, whatever else drew from NumPy's global RNG.
+    np.random.default_rng().random()
+    assert report.iqm_intervals({"other": scores + 1, "m": scores}, reps=REPS, seed=7)["m"] \
+        == first
+
+
+def test_probability_of_improvement_of_a_dominating_method_is_one(full):
+    scores = np.random.default_rng(0).normal(size=(3, 4))
+    assert report.probability_of_improvement(scores + 10, scores, reps=REPS) == (1.0, 1.0, 1.0)
+    assert report.probability_of_improvement(scores, scores, reps=REPS)[0] == 0.5
+    out, _, _ = full
+    text = (out / "report" / "report.md").read_text()
+    for other in ("BC", "GAIL", "SQIL"):
+        assert f"| RAPL-SQIL > {other} | 1.00 [1.00, 1.00] |" in text
+    for other in ("A2C", "MacroAction", "OptionCritic", "CompILE"):
+        assert f"| RAPL-A2C > {other} | 1.00 [1.00, 1.00] |" in text
+
+
+def test_all_six_figures_are_valid_pngs_with_their_csvs(full):
+    import matplotlib.image
+
+    out, written, _ = full
+    folder = out / "report"
+    for stem in report.FILES.values():
+        png = folder / f"{stem}.png"
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert png.stat().st_size > 10_000
+        image = matplotlib.image.imread(png)
+        assert image.shape[0] > 300 and image.shape[1] > 500
+        assert png in written and folder / f"{stem}.csv" in written
+    assert written[-1] == folder / "report.md"
+    assert not list(folder.glob(".*.tmp"))
+
+
+def test_coinrun_csv_has_mean_and_std_over_seeds_per_level_set(full):
+    out, _, _ = full
+    rows = {(r["method"], r["levels"]): r for r in _rows(out / "report" / "fig4_coinrun.csv")}
+    assert float(rows["A2C", "train"]["mean_return"]) == 9.0
+    assert float(rows["A2C", "train"]["std_return"]) == pytest.approx(math.sqrt(2))
+    assert float(rows["A2C", "easy"]["mean_return"]) == 7.0
+    assert float(rows["RAPL-A2C", "hard"]["mean_return"]) == 4.0
+
+
+def test_scalability_csv_is_relative_to_a2c_with_se_over_seeds(full):
+    out, _, _ = full
+    rows = _rows(out / "report" / "fig5_scalability.csv")
+    # RAPL-A2C at K 3, length 2: +20 % on both games with seed 1, +40 % with seed 2.
+    chosen = [r for r in rows if (r["method"], r["K"], r["min_length"]) == ("RAPL-A2C", "3", "2")]
+    assert {r["panel"] for r in chosen} == {"K", "min_length"}
+    for row in chosen:
+        assert float(row["relative_mean_pct"]) == pytest.approx(30.0)
+        assert float(row["relative_se_pct"]) == pytest.approx(10.0)
+        assert (row["games"], row["seeds"]) == ("2", "2")
+    macro = next(r for r in rows if (r["method"], r["K"], r["min_length"])
+                 == ("MacroAction", "3", "5"))
+    assert float(macro["relative_mean_pct"]) == pytest.approx(6.0)
+    assert [r["K"] for r in rows if r["panel"] == "K" and r["method"] == "MacroAction"] \
+        == ["1", "3", "6"]
+
+
+def test_ablation_csv_has_the_iqm_of_each_variant(full):
+    out, _, _ = full
+    rows = {r["variant"]: r for r in _rows(out / "report" / "fig6_ablation.csv")}
+    assert list(rows) == [*report.ABLATION_VARIANTS, "A2C"]
+    for variant, value in ABLATION.items():
+        assert float(rows[variant]["score_iqm"]) == pytest.approx(value + 0.01)
+    assert float(rows["A2C"]["score_iqm"]) == pytest.approx(0.45)
+
+
+def test_experiments_not_run_are_named_and_only_their_files_are_missing(tmp_path, monkeypatch):
+    played = _patch_references(monkeypatch)
+    sweep = Sweep(tmp_path)
+    for seed, (a, r) in enumerate(((4, 6), (6, 8)), start=1):
+        sweep.run("rl", "A2C", BREAKOUT, seed, a)
+        sweep.run("rl", "RAPL-A2C", BREAKOUT, seed, r)
+    sweep.run("curves", "A2C", BREAKOUT, 1, None)
+    sweep.write(budget="smoke")
+    written = report.write_report(tmp_path, reps=REPS)
+    names = sorted(p.name for p in written)
+    assert names == ["fig2_rl.csv", "fig2_rl.png", "reference_scores.json", "report.md"]
+    text = (tmp_path / "report" / "report.md").read_text()
+    assert "not run (no `imitation.json` in the sweep folder)" in text
+    assert "0 of 1 runs finished" in text and "No finished run: no figure." in text
+    assert played == [BREAKOUT]
+
+    # The random policy's score is cached: a second report does not play again.
+    def refuse(*args):
+        raise AssertionError("played the random policy again")
+
+    monkeypatch.setattr(report, "random_policy_scores", refuse)
+    report.write_report(tmp_path, reps=REPS)
+
+
+def test_absent_or_empty_sweep_folder_is_a_one_line_usage_error(tmp_path):
+    with pytest.raises(UsageError, match=r"nowhere: no such sweep folder") as absent:
+        report.write_report(tmp_path / "nowhere")
+    assert "\n" not in str(absent.value)
+    with pytest.raises(UsageError, match=rf"{tmp_path}: not a sweep folder"):
+        report.write_report(tmp_path)
+
+
+def test_importing_the_report_loads_no_heavy_library():
+    code = ("import sys, routine_gym.experiments.report\n"
+            "print(sorted({m.split('.')[0] for m in sys.modules} & {'torch', 'ale_py', "
+            "'procgen', 'rliable', 'matplotlib', 'tensorboard'}))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout
+    assert out.strip() == "[]"
