@@ -1,17 +1,18 @@
 """Evaluation metrics of the paper (SPEC §5): alignment, human-normalised score, relative
-performance, and the interquartile mean with stratified bootstrap confidence intervals.
+performance, and the interquartile mean.
 
-All functions are pure (numpy and rapidfuzz only) so they can be checked with hand-computed
-numbers:
+All functions are pure (numpy and rapidfuzz; `iqm` is rliable's) so they can be checked with
+hand-computed numbers:
 
 - `alignment_score(demo, agent) = 1 − Levenshtein(ι_d, ι_t) / |ι_d|`, the agent's primitive
   action trajectory cut or padded to the demonstration's length;
 - `human_normalized_score(score, game) = (score − random) / (human − random)` with the
   standard per-game table `HUMAN_RANDOM_SCORES`;
 - `relative_performance(S_R, S_A) = (S_R − S_A) / |S_A|`;
-- `iqm(values)`, the 25 % trimmed mean (rliable's IQM), and `iqm_with_ci(scores)`, the IQM of a
-  `(runs, tasks)` score matrix with a percentile bootstrap interval that resamples runs within
-  each task (rliable's stratified bootstrap).
+- `iqm(values)`, rliable's interquartile mean (the 25 % trimmed mean).
+
+Confidence intervals, performance profiles and probabilities of improvement are rliable's own,
+used by the experiment report (`routine_gym.experiments.report`).
 """
 
 from __future__ import annotations
@@ -233,13 +234,6 @@ def _finite_array(values: np.ndarray | Sequence[float], name: str) -> np.ndarray
     return arr
 
 
-def _trimmed_means(sorted_rows: np.ndarray) -> np.ndarray:
-    """IQM of each row of an array sorted along its last axis."""
-    n = sorted_rows.shape[-1]
-    cut = n // 4  # scipy.stats.trim_mean(x, 0.25) cuts int(0.25 n) from each end
-    return sorted_rows[..., cut : n - cut].mean(axis=-1)
-
-
 def iqm(values: np.ndarray | Sequence[float]) -> float:
     """Interquartile mean: the mean of the middle 50 % of all values (any shape, flattened).
 
@@ -254,54 +248,6 @@ def iqm(values: np.ndarray | Sequence[float]) -> float:
     Raises:
         ValueError: for no values, or NaN/infinite values.
     """
-    arr = _finite_array(values, "values").ravel()
-    return float(_trimmed_means(np.sort(arr)))
+    from rliable.metrics import aggregate_iqm  # imported here: rliable loads scipy and arch
 
-
-def iqm_with_ci(
-    scores: np.ndarray | Sequence[Sequence[float]],
-    reps: int = 2000,
-    confidence: float = 0.95,
-    seed: int = 0,
-) -> tuple[float, float, float]:
-    """IQM over runs and tasks with a stratified percentile bootstrap interval, as rliable.
-
-    Args:
-        scores: a `(runs, tasks)` matrix (`scores[n, m]` is run `n` on task `m`, e.g. seeds ×
-            games of human-normalised scores); a 1-D array is one task.
-        reps: bootstrap resamples.
-        confidence: coverage of the interval, in (0, 1).
-        seed: seed of the resampling; the same seed gives the same interval.
-
-    Returns:
-        `(iqm, lo, hi)`: the IQM of all scores and the `(1 − confidence)/2` and
-        `(1 + confidence)/2` percentiles of the IQMs of `reps` resamples, each of which draws
-        `runs` runs with replacement independently for every task.
-
-    Raises:
-        ValueError: for empty or non-finite scores, a matrix of more than 2 dimensions, or
-            `reps`/`confidence` out of range.
-    """
-    arr = _finite_array(scores, "scores")
-    if arr.ndim == 1:
-        arr = arr[:, None]
-    if arr.ndim != 2:
-        raise ValueError(f"scores needs to be a (runs, tasks) matrix, got shape {arr.shape}")
-    if isinstance(reps, bool) or not isinstance(reps, int | np.integer) or reps < 1:
-        raise ValueError(f"reps needs to be an integer ≥ 1, actual value: {reps!r}")
-    if not 0.0 < float(confidence) < 1.0:
-        raise ValueError(f"confidence needs to be in (0, 1), actual value: {confidence!r}")
-    runs, tasks = arr.shape
-    rng = np.random.default_rng(seed)
-    # Chunks keep the (chunk, runs, tasks) resample array near a million entries.
-    chunk = max(1, 1_000_000 // (runs * tasks))
-    stats = np.empty(int(reps), dtype=np.float64)
-    columns = np.arange(tasks)
-    for start in range(0, int(reps), chunk):
-        stop = min(int(reps), start + chunk)
-        rows = rng.integers(0, runs, size=(stop - start, runs, tasks))
-        resampled = arr[rows, columns].reshape(stop - start, runs * tasks)
-        stats[start:stop] = _trimmed_means(np.sort(resampled, axis=1))
-    tail = 100.0 * (1.0 - float(confidence)) / 2.0
-    lo, hi = np.percentile(stats, [tail, 100.0 - tail])
-    return iqm(arr), float(lo), float(hi)
+    return float(aggregate_iqm(_finite_array(values, "values").ravel()))

@@ -13,7 +13,6 @@ from routine_gym.metrics import (
     atari_game_name,
     human_normalized_score,
     iqm,
-    iqm_with_ci,
     relative_performance,
 )
 
@@ -183,54 +182,3 @@ def test_iqm_errors():
     with pytest.raises(ValueError, match="NaN"):
         iqm([1.0, float("nan")])
 
-
-def test_iqm_with_ci_point_estimate_and_interval():
-    scores = np.random.default_rng(3).normal(size=(5, 4))
-    point, lo, hi = iqm_with_ci(scores, reps=500, seed=0)
-    assert point == pytest.approx(iqm(scores))
-    assert lo <= point <= hi and lo < hi
-
-
-def test_iqm_with_ci_is_deterministic_for_a_seed():
-    scores = np.random.default_rng(4).normal(size=(6, 3))
-    assert iqm_with_ci(scores, reps=300, seed=1) == iqm_with_ci(scores, reps=300, seed=1)
-    assert iqm_with_ci(scores, reps=300, seed=1) != iqm_with_ci(scores, reps=300, seed=2)
-
-
-def test_iqm_with_ci_one_run_has_no_spread():
-    point, lo, hi = iqm_with_ci([[1.0, 2.0, 3.0, 10.0]], reps=50)
-    assert point == lo == hi == pytest.approx(2.5)
-
-
-def test_iqm_with_ci_resamples_runs_within_each_task():
-    # Task 0 always scores 0 and task 1 always 100. Resampling runs within each task keeps
-    # four 0s and four 100s, so every resample has IQM mean(0, 0, 100, 100) = 50; pooling the
-    # values across tasks would not.
-    scores = np.array([[0.0, 100.0]] * 4)
-    assert iqm_with_ci(scores, reps=200) == (50.0, 50.0, 50.0)
-
-
-def test_iqm_with_ci_percentiles_of_a_two_run_task():
-    # Two runs scoring 0 and 1: a resample is {0,0}, {0,1}, {1,0} or {1,1}, each with
-    # probability 1/4, with IQM (= mean of 2 values) 0, 0.5, 0.5, 1. The 2.5 % and 97.5 %
-    # percentiles are therefore 0 and 1; the 30 % and 70 % ones are both 0.5.
-    assert iqm_with_ci([0.0, 1.0], reps=2000) == (0.5, 0.0, 1.0)
-    assert iqm_with_ci([0.0, 1.0], reps=2000, confidence=0.4) == (0.5, 0.5, 0.5)
-
-
-@pytest.mark.parametrize(
-    ("kwargs", "name"),
-    [
-        ({"reps": 0}, "reps"),
-        ({"confidence": 1.0}, "confidence"),
-        ({"confidence": 0.0}, "confidence"),
-    ],
-)
-def test_iqm_with_ci_argument_errors(kwargs, name):
-    with pytest.raises(ValueError, match=name):
-        iqm_with_ci([[1.0, 2.0]], **kwargs)
-
-
-def test_iqm_with_ci_rejects_3d_scores():
-    with pytest.raises(ValueError, match="runs, tasks"):
-        iqm_with_ci(np.zeros((2, 2, 2)))

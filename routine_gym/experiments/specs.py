@@ -115,6 +115,7 @@ class Budget:
     demo_episodes: int = 10
     num_envs: int | None = None  # None: each script's default (16)
     compile_flags: tuple[tuple[str, Any], ...] = ()  # CompILE's own training, when not default
+    ablation_games: tuple[str, ...] | None = None  # None: `games`
 
     def checkpoint_every(self, steps: int) -> int:
         return max(steps // 5, 1)
@@ -123,11 +124,13 @@ class Budget:
 BUDGETS: dict[str, Budget] = {
     "smoke": Budget(
         name="smoke", description="seconds a run, 1 seed, 1 game (the tests)", seeds=1,
-        games=("MinAtar/Freeway-v1",), rl_games=("MinAtar/Freeway-v1",),
+        games=("MinAtar/Breakout-v1",), rl_games=("MinAtar/Breakout-v1",),
         imitation_games=("MiniQbert-v0",), steps=1_000, coinrun_steps=160, sqil_steps=500,
         gail_steps=512, bc_steps=50, expert_steps=1_000, shipped_expert_steps=5_000,
         eval_episodes=1, scalability_k=(1, 3), scalability_lengths=(2, 4), demo_episodes=1,
-        num_envs=4, compile_flags=(("compile-iterations", 20), ("compile-option-steps", 20))),
+        num_envs=4, compile_flags=(("compile-iterations", 20), ("compile-option-steps", 20)),
+        # Freeway's episodes last 2,500 steps: even a barely trained expert's demo has routines.
+        ablation_games=("MinAtar/Freeway-v1",)),
     "cpu": Budget(
         name="cpu",
         description="MinAtar's five games (and MiniQbert, CoinRun) at 10^6 agent steps, "
@@ -290,7 +293,8 @@ ABLATIONS = {"Full": "full", "RR": "random", "PbE": "enumerate", "RF": "random-f
 
 def _ablation(b: _Builder) -> None:
     budget = b.budget
-    for env_id in budget.games:
+    games = budget.games if budget.ablation_games is None else budget.ablation_games
+    for env_id in games:
         full_steps = budget.shipped_expert_steps if _has_shipped_demo(env_id) else (
             budget.expert_steps)
         for seed in b.seeds():
@@ -346,7 +350,8 @@ def build(name: str, budget: str, seeds: Sequence[int] | None = None,
         raise UsageError(f"unknown budget {budget!r}; choose from {', '.join(BUDGETS)}")
     sizes = BUDGETS[budget]
     if envs:
-        known = {*sizes.games, *sizes.rl_games, *sizes.imitation_games, COINRUN}
+        known = {*sizes.games, *sizes.rl_games, *sizes.imitation_games,
+                 *(sizes.ablation_games or ()), COINRUN}
         unknown = [e for e in envs if e not in known]
         if unknown:
             raise UsageError(f"--envs {unknown[0]} is not a game of the {budget} budget "
@@ -354,7 +359,9 @@ def build(name: str, budget: str, seeds: Sequence[int] | None = None,
         keep = set(envs)
         sizes = replace(sizes, games=tuple(g for g in sizes.games if g in keep),
                         rl_games=tuple(g for g in sizes.rl_games if g in keep),
-                        imitation_games=tuple(g for g in sizes.imitation_games if g in keep))
+                        imitation_games=tuple(g for g in sizes.imitation_games if g in keep),
+                        ablation_games=None if sizes.ablation_games is None else tuple(
+                            g for g in sizes.ablation_games if g in keep))
     builder = _Builder(sizes)
     EXPERIMENTS[name].builder(builder)
     entries = list(builder.entries.values())

@@ -1,0 +1,328 @@
+"""`routine-gym experiment`: the six experiments' specs, sweeps of real runs of the scripts at the
+`smoke` budget (locally and through a real local Ray instance), rerun, kill and resume, failed
+runs, and the report of a real sweep."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from routine_gym.errors import UsageError
+from routine_gym.experiments import specs, sweep
+from routine_gym.experiments.specs import BUDGETS, EXPERIMENTS, RunSpec, build, count_runs
+
+NAMES = ["imitation", "rl", "curves", "coinrun", "scalability", "ablation"]
+CLI = [sys.executable, "-m", "routine_gym.cli"]
+
+
+# -- specs ---------------------------------------------------------------------------------------
+
+def test_the_six_experiments_and_three_budgets():
+    assert list(EXPERIMENTS) == NAMES
+    assert list(BUDGETS) == ["smoke", "cpu", "paper"]
+    assert len(specs.PAPER_GAMES) == 30 and "ALE/WizardOfWor-v5" in specs.PAPER_GAMES
+
+
+@pytest.mark.parametrize(("name", "runs", "steps"), [
+    # 6 games (MinAtar's five and MiniQbert) × 3 seeds × 4 methods; BC counts gradient steps.
+    ("imitation", 72, 18 * (10_000 + 500_000 + 2 * 100_000)),
+    ("rl", 36, 36 * 10**6),  # 6 games × 3 seeds × {A2C, RAPL-A2C}
+    ("curves", 75, 75 * 10**6),  # 5 games × 3 seeds × 5 methods
+    ("coinrun", 6, 6 * 500_000),  # 3 seeds × {A2C, RAPL-A2C}
+    # 5 games × 3 seeds × (A2C + 2 methods × {K 1, 3, 6 at length 2; length 5 at K 3})
+    ("scalability", 135, 135 * 10**6),
+    # 5 games × 3 seeds × (A2C + Full RR PbE RF RP ID) + 5 ID experts of 5M / 10 steps
+    ("ablation", 110, 105 * 10**6 + 5 * 500_000),
+])
+def test_cpu_budget_run_counts_worked_out_by_hand(name, runs, steps):
+    assert count_runs(name, "cpu") == (runs, steps)
+
+
+def test_paper_budget_is_the_papers_settings():
+    entries = build("rl", "paper")
+    assert {e.env_id for e in entries} == set(specs.PAPER_GAMES)
+    assert {e.seed for e in entries} == {1, 2, 3, 4, 5}
+    assert {e.run.steps for e in entries if e.role == "main"} == {10**7}
+    # Games without a shipped demo first train a 10^7-step A2C expert that records one.
+    experts = {e.env_id: e for e in entries if e.role == "expert"}
+    assert "ALE/Amidar-v5" in experts and "ALE/Qbert-v5" not in experts
+    assert experts["ALE/Amidar-v5"].run.steps == 10**7
+    rapl = next(e for e in entries if e.env_id == "ALE/Amidar-v5" and e.method == "RAPL-A2C")
+    assert rapl.run.needs == (experts["ALE/Amidar-v5"].run.key,)
+    assert dict(rapl.run.flags)["demo"] == f"@run:{experts['ALE/Amidar-v5'].run.key}/demo.npz"
+
+
+def test_the_same_run_in_two_experiments_has_one_key():
+    rl = {(e.method, e.env_id, e.seed): e.run.key for e in build("rl", "cpu")}
+    curves = {(e.method, e.env_id, e.seed): e.run.key for e in build("curves", "cpu")}
+    scal = {(e.method, e.env_id, e.seed): e.run.key for e in build("scalability", "cpu")
+            if e.variant in ({}, {"K": 3, "min_length": 2})}
+    shared = ("RAPL-A2C", "MinAtar/Breakout-v1", 2)
+    assert rl[shared] == curves[shared] == scal[shared]
+    assert rl[("A2C", "MinAtar/Seaquest-v1", 3)] == curves[("A2C", "MinAtar/Seaquest-v1", 3)]
+
+
+def test_a_key_is_a_hash_of_script_and_flags():
+    a = RunSpec("rapl_a2c", (("env-id", "MinAtar/Breakout-v1"), ("seed", 1)), 10)
+    same = RunSpec("rapl_a2c", (("seed", 1), ("env-id", "MinAtar/Breakout-v1")), 99)
+    other = RunSpec("rapl_a2c", (("env-id", "MinAtar/Breakout-v1"), ("seed", 2)), 10)
+    assert a.key == same.key  # flag order and the step count are not part of it
+    assert a.key != other.key and len(a.key) == 12
+    assert a.key != RunSpec("option_critic", a.flags, 10).key
+
+
+def test_ablation_id_uses_a_demo_of_an_expert_trained_a_tenth_as_long():
+    entries = build("ablation", "cpu")
+    ident = [e for e in entries if e.variant == {"discovery": "ID"}]
+    experts = {e.run.key: e for e in entries if e.role == "expert"}
+    assert len(ident) == 15 and len(experts) == 5
+    for entry in ident:
+        (need,) = entry.run.needs
+        assert experts[need].env_id == entry.env_id
+        assert experts[need].run.steps == BUDGETS["cpu"].shipped_expert_steps // 10 == 500_000
+        assert dict(experts[need].run.flags)["record-demo"] == "@self/demo.npz"
+    proposers = {e.variant["discovery"]: dict(e.run.flags).get("proposer", "full")
+                 for e in entries if "discovery" in e.variant}
+    assert proposers == {"Full": "full", "RR": "random", "PbE": "enumerate",
+                         "RF": "random-fetch", "RP": "repeat", "ID": "full"}
+
+
+def test_scalability_varies_k_and_the_shortest_routine_length():
+    flags = {tuple(sorted(e.variant.items())): dict(e.run.flags)
+             for e in build("scalability", "cpu") if e.method == "MacroAction"
+             and e.env_id == "MinAtar/Asterix-v1" and e.seed == 1}
+    assert flags[(("K", 1), ("min_length", 2))]["num-routines"] == 1
+    assert flags[(("K", 6), ("min_length", 2))]["num-routines"] == 6
+    assert flags[(("K", 3), ("min_length", 5))]["min-routine-length"] == 5
+    assert "num-routines" not in flags[(("K", 3), ("min_length", 2))]
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [
+    ({"name": "nope", "budget": "cpu"}, "unknown experiment 'nope'; choose from imitation, rl"),
+    ({"name": "rl", "budget": "huge"}, "unknown budget 'huge'; choose from smoke, cpu, paper"),
+    ({"name": "rl", "budget": "cpu", "seeds": [4]}, "--seeds 4 is outside the cpu budget's seeds"),
+    ({"name": "rl", "budget": "cpu", "envs": ["ALE/Pong-v5"]},
+     "--envs ALE/Pong-v5 is not a game of the cpu budget"),
+])
+def test_bad_experiment_requests_are_one_line_errors(kwargs, match):
+    with pytest.raises(UsageError, match=match):
+        build(**kwargs)
+
+
+def test_seeds_and_envs_select_runs():
+    entries = build("rl", "cpu", seeds=[2], envs=["MinAtar/Breakout-v1"])
+    assert {(e.method, e.env_id, e.seed) for e in entries} == {
+        ("A2C", "MinAtar/Breakout-v1", 2), ("RAPL-A2C", "MinAtar/Breakout-v1", 2)}
+
+
+def test_command_resolves_run_references_and_resumes_from_a_checkpoint(tmp_path):
+    config = {"key": "aaaaaaaaaaaa", "script": "rapl_a2c",
+              "flags": {"env-id": "MinAtar/Breakout-v1", "demo": "@run:bbbbbbbbbbbb/demo.npz",
+                        "record-demo": "@self/demo.npz", "extra-evals": ["train", "hard"]}}
+    words = sweep.command(config, tmp_path, python="py")
+    assert words[2:] == ["--env-id", "MinAtar/Breakout-v1",
+                         "--demo", str(tmp_path / "bbbbbbbbbbbb" / "demo.npz"),
+                         "--record-demo", str(tmp_path / "aaaaaaaaaaaa" / "demo.npz"),
+                         "--extra-evals", "train", "hard",
+                         "--run-dir", str(tmp_path / "aaaaaaaaaaaa"), "--torch-threads", "1"]
+    assert words[1].endswith("algos/rapl_a2c.py")
+    run = tmp_path / "aaaaaaaaaaaa" / "MinAtar-Breakout-v1__rapl_a2c-rapl__1__1"
+    run.mkdir(parents=True)
+    (run / "checkpoint.pt").write_bytes(b"")
+    assert sweep.command(config, tmp_path, python="py")[2:] == ["--resume", str(run)]
+
+
+# -- sweeps of real runs ---------------------------------------------------------------------------
+
+def _results(out: Path) -> dict[str, float]:
+    return {p.parent.name: p.stat().st_mtime for p in out.glob("runs/*/result.json")}
+
+
+def _manifest_keys(out: Path, name: str) -> set[str]:
+    return {r["key"] for r in json.loads((out / f"{name}.json").read_text())["runs"]}
+
+
+def _sweep_all(out: Path, backend: str) -> io.StringIO:
+    stream = io.StringIO()
+    for name in NAMES:
+        summary = sweep.run_experiment(name, "smoke", out, jobs=2, backend=backend,
+                                       stream=stream)
+        assert summary.ok, (name, summary.failed)
+    return stream
+
+
+@pytest.fixture(scope="module")
+def local_sweep(tmp_path_factory) -> tuple[Path, str]:
+    out = tmp_path_factory.mktemp("sweep") / "smoke"
+    return out, _sweep_all(out, "local").getvalue()
+
+
+@pytest.mark.slow
+def test_smoke_sweep_of_all_six_finishes_every_run(local_sweep):
+    out, printed = local_sweep
+    done = _results(out)
+    for name in NAMES:
+        keys = _manifest_keys(out, name)
+        assert keys and keys <= set(done), name
+        for key in keys:
+            result = json.loads((out / "runs" / key / "result.json").read_text())
+            assert result["eval"]["episodes"] == BUDGETS["smoke"].eval_episodes
+            assert (out / "runs" / key / result["run_dir"] / "eval.json").is_file()
+    # CoinRun runs carry the training-level and hard-level evaluations too.
+    for key in _manifest_keys(out, "coinrun"):
+        result = json.loads((out / "runs" / key / "result.json").read_text())
+        assert set(result["evals"]) == {"train", "hard"}
+        assert result["evals"]["hard"]["env_kwargs"]["distribution_mode"] == "hard"
+    # The ID expert recorded the demo the ID run mined.
+    ablation = json.loads((out / "ablation.json").read_text())["runs"]
+    (expert,) = [r for r in ablation if r["role"] == "expert"]
+    assert (out / "runs" / expert["key"] / "demo.npz").is_file()
+    assert "[ablation] runs 8/8 done, 0 running, 0 failed · agent steps 7,500/7,500" in printed
+
+
+@pytest.mark.slow
+def test_rerunning_a_finished_sweep_is_a_no_op(local_sweep):
+    out, _ = local_sweep
+    before = _results(out)
+    logs = {k: (out / "runs" / k / "log.txt").read_text() for k in before}
+    stream = _sweep_all(out, "local")
+    assert _results(out) == before
+    assert {k: (out / "runs" / k / "log.txt").read_text() for k in before} == logs
+    assert "0 to run" in stream.getvalue() and "runs 2/2 done" in stream.getvalue()
+
+
+@pytest.mark.slow
+def test_report_of_a_real_smoke_sweep_writes_six_figures_csvs_and_report_md(local_sweep):
+    out, _ = local_sweep
+    proc = subprocess.run([*CLI, "experiment", "report", str(out)], capture_output=True,
+                          text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    report = out / "report"
+    for stem in ("table1_imitation", "fig2_rl", "fig3_curves", "fig4_coinrun",
+                 "fig5_scalability", "fig6_ablation"):
+        png = (report / f"{stem}.png").read_bytes()
+        assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000, stem
+        assert (report / f"{stem}.csv").read_text().count(",") >= 2, stem  # a header at least
+    # Smoke runs are too short to score, but every run of the sweep is in the tables.
+    rows = (report / "fig6_ablation.csv").read_text().splitlines()
+    assert {r.split(",")[0] for r in rows[1:]} >= {"Full", "RR", "PbE", "RF", "ID", "RP"}
+    text = (report / "report.md").read_text()
+    assert "Budget: **smoke**" in text
+    for heading in ("Table 1", "Fig. 2", "Fig. 3", "Fig. 4", "Fig. 5", "Fig. 6"):
+        assert f"## {heading} " in text
+    assert "8 of 8 runs finished" in text
+
+
+@pytest.mark.slow
+def test_smoke_sweep_of_all_six_through_a_real_local_ray_instance(tmp_path):
+    pytest.importorskip("ray")
+    out = tmp_path / "ray"
+    _sweep_all(out, "ray")
+    for name in NAMES:
+        assert _manifest_keys(out, name) <= set(_results(out)), name
+    before = _results(out)
+    _sweep_all(out, "ray")  # again: nothing is redone
+    assert _results(out) == before
+
+
+def _children_of(pid: int) -> list[int]:
+    found = []
+    for proc in Path("/proc").iterdir():
+        if proc.name.isdigit():
+            try:
+                stat = (proc / "stat").read_text()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                found.append(int(proc.name))
+    return found
+
+
+@pytest.mark.slow
+def test_a_killed_sweep_resumes_without_redoing_finished_runs(tmp_path):
+    out = tmp_path / "killed"
+    cmd = [*CLI, "experiment", "run", "ablation", "--budget", "smoke", "--out", str(out),
+           "--jobs", "2"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 240
+    while len(_results(out)) < 2 and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.2)
+    assert proc.poll() is None, "the sweep ended before it could be killed"
+    children = _children_of(proc.pid)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    time.sleep(1.0)
+    # Its runs died with it (none is left writing into the folder).
+    assert all(not Path(f"/proc/{c}").exists() or "zombie" in Path(f"/proc/{c}/status")
+               .read_text().lower() for c in children)
+    finished = _results(out)
+    assert 2 <= len(finished) < 8
+    rerun = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert rerun.returncode == 0, rerun.stdout + rerun.stderr
+    assert f"{len(finished)} finished before" in rerun.stdout
+    after = _results(out)
+    assert set(after) >= _manifest_keys(out, "ablation")
+    assert {k: after[k] for k in finished} == finished  # not redone
+
+
+def test_a_failed_run_is_reported_and_the_others_go_on(tmp_path, monkeypatch):
+    bad = RunSpec("rapl_a2c", (("env-id", "NoSuchEnv-v0"), ("total-timesteps", 10)), 10)
+    after_bad = RunSpec("rapl_a2c", (("env-id", "MiniQbert-v0"), ("total-timesteps", 100),
+                                     ("mode", "a2c"), ("eval-episodes", 1),
+                                     ("demo", f"@run:{bad.key}/demo.npz")), 100, (bad.key,))
+    good = RunSpec("rapl_a2c", (("env-id", "MiniQbert-v0"), ("total-timesteps", 100),
+                                ("mode", "a2c"), ("eval-episodes", 1)), 100)
+    entries = [specs.Entry(r, "A2C", "MiniQbert-v0", 1) for r in (bad, after_bad, good)]
+    monkeypatch.setattr(sweep, "build", lambda *a, **k: entries)
+    stream = io.StringIO()
+    summary = sweep.run_experiment("rl", "smoke", tmp_path, jobs=2, stream=stream)
+    assert summary.finished == [good.key]
+    assert "NoSuchEnv-v0" in summary.failed[bad.key] and "exit code 2" in summary.failed[bad.key]
+    assert summary.failed[after_bad.key] == f"needs run {bad.key}, which failed"
+    assert not (tmp_path / "runs" / after_bad.key / "log.txt").exists()  # never started
+    assert f"failed {bad.key} (rapl_a2c): exit code 2" in stream.getvalue()
+
+
+def test_an_out_folder_holds_one_budget_per_experiment(tmp_path, monkeypatch):
+    good = RunSpec("rapl_a2c", (("env-id", "MiniQbert-v0"), ("total-timesteps", 100),
+                                ("mode", "a2c"), ("eval-episodes", 1)), 100)
+    monkeypatch.setattr(sweep, "build",
+                        lambda *a, **k: [specs.Entry(good, "A2C", "MiniQbert-v0", 1)])
+    assert sweep.run_experiment("rl", "smoke", tmp_path, stream=io.StringIO()).ok
+    with pytest.raises(UsageError, match="already holds experiment rl at budget smoke"):
+        sweep.run_experiment("rl", "cpu", tmp_path, stream=io.StringIO())
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["run", "rl", "--budget", "huge", "--out", "X"], "unknown budget 'huge'"),
+    (["run", "rl", "--budget", "smoke", "--out", "X", "--backend", "slurm"],
+     "--backend needs to be local or ray, actual value: slurm"),
+    (["run", "rl", "--budget", "smoke", "--out", "X", "--address", "h:1"],
+     "--address joins a Ray cluster: it needs --backend ray"),
+    (["report", "nowhere"], "nowhere"),
+])
+def test_cli_errors_are_one_line(tmp_path, argv, message):
+    proc = subprocess.run([*CLI, "experiment", *argv], capture_output=True, text=True,
+                          cwd=tmp_path, timeout=120)
+    assert proc.returncode == 2
+    assert message in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert not (tmp_path / "X").exists()
+
+
+def test_cli_list_shows_every_experiment_with_its_runs_per_budget():
+    proc = subprocess.run([*CLI, "experiment", "list"], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    rows = {line.split()[0]: line for line in proc.stdout.splitlines() if line[:1].isalpha()}
+    for name in NAMES:
+        assert name in rows
+    assert "36 runs 36.0M steps" in rows["rl"] and "325 runs" in rows["rl"]
+    assert "110 runs" in rows["ablation"]
