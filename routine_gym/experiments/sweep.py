@@ -299,7 +299,7 @@ class _Progress:
         self.tty = getattr(stream, "isatty", lambda: False)()
 
     def steps(self, done: set[str], running: set[str]) -> int:
-        return (sum(min(self.specs[k].steps, self.specs[k].steps) for k in done)
+        return (sum(self.specs[k].steps for k in done)
                 + sum(min(_steps_done(self.runs, k), self.specs[k].steps) for k in running))
 
     def show(self, done: set[str], running: set[str], failed: dict, force: bool = False) -> None:
@@ -365,8 +365,10 @@ def run_experiment(name: str, budget: str, out: str | Path, *, jobs: int = 1,
     summary.skipped = sorted(done)
     todo = [k for k in specs if k not in done]
     progress = _Progress(name, specs, runs, stream)
+    where = (f"local, {jobs} at a time" if backend == "local" else
+             f"Ray cluster at {address}" if address else f"local Ray instance of {jobs} CPUs")
     progress.note(f"[{name}] budget {budget}: {len(specs)} runs, {len(done)} finished before, "
-                  f"{len(todo)} to run ({backend}, {jobs} at a time) into {out}")
+                  f"{len(todo)} to run ({where}) into {out}")
     if not todo:
         progress.show(done, set(), {}, force=True)
         return summary
@@ -391,7 +393,10 @@ def run_experiment(name: str, budget: str, out: str | Path, *, jobs: int = 1,
                     todo.remove(key)
                     handles[runner.submit(spec.config(), runs, cuda)] = key
             if not handles:
-                break  # nothing runnable is left (its needs failed)
+                for key in todo:  # nothing can start them: their needs are not in the sweep
+                    missing = next(n for n in specs[key].needs if n not in done)
+                    failed[key] = f"needs run {missing}, which is not part of this sweep"
+                break
             for handle, outcome in runner.wait(list(handles), poll):
                 key = handles.pop(handle)
                 if "error" in outcome:
