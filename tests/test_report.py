@@ -288,7 +288,7 @@ def test_all_six_figures_are_valid_pngs_with_their_csvs(full):
 
     out, written, _ = full
     folder = out / "report"
-    for stem in report.FILES.values():
+    for stem in [*report.FILES.values(), report.PROFILE_FILE]:
         png = folder / f"{stem}.png"
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert png.stat().st_size > 10_000
@@ -373,3 +373,12 @@ def test_importing_the_report_loads_no_heavy_library():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout
     assert out.strip() == "[]"
+
+
+def test_performance_profiles_count_the_runs_above_each_threshold():
+    # 4 scores: 0.1, 0.3, 0.5, 0.9 → above 0: all; above 0.4: 0.5 and 0.9; above 1: none.
+    scores = {"A": np.array([[0.1, 0.5], [0.3, 0.9]])}
+    profiles = report.performance_profiles(scores, np.array([0.0, 0.4, 1.0]), reps=50)
+    profile, lo, hi = profiles["A"]
+    assert profile.tolist() == [1.0, 0.5, 0.0]
+    assert np.all(lo <= profile + 1e-12) and np.all(profile <= hi + 1e-12)

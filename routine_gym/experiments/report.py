@@ -352,6 +352,20 @@ def iqm_intervals(score_dict: Mapping[str, np.ndarray], reps: int = 2000,
     return intervals
 
 
+def performance_profiles(score_dict: Mapping[str, np.ndarray], taus: np.ndarray,
+                         reps: int = 2000, seed: int = 0
+                         ) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """`{name: (profile, lo, hi)}`: rliable's score distribution, the fraction of runs (of every
+    game) scoring above each threshold in `taus`, with its 95 % stratified-bootstrap band."""
+    from rliable import library as rly
+
+    with _bootstrap_rng(seed):
+        profiles, cis = rly.create_performance_profile(dict(score_dict), taus, reps=reps)
+    return {name: (np.asarray(profiles[name], dtype=np.float64),
+                   np.asarray(cis[name][0], dtype=np.float64),
+                   np.asarray(cis[name][1], dtype=np.float64)) for name in score_dict}
+
+
 def probability_of_improvement(x: np.ndarray, y: np.ndarray, reps: int = 2000,
                                seed: int = 0) -> tuple[float, float, float]:
     """`(P(X > Y), lo, hi)`: rliable's probability that a run of X beats a run of Y on a game,
@@ -833,6 +847,7 @@ def _curves(w: _Writer, runs: list[Run]) -> list[str]:
     w.png(fig, FILES["curves"])
 
     agg = _aggregate(w, groups)
+    profile_lines = _profiles(w, agg, methods)
     lines = [f"Curves: each run's training episodes (`{RETURN_TAG}`) averaged in "
              f"{CURVE_BINS} equal step bins from 0 to its budget (an empty bin carries the "
              "last value forward), then mean ± sample std over seeds.", ""]
@@ -842,7 +857,41 @@ def _curves(w: _Writer, runs: list[Run]) -> list[str]:
               *_table(("method", "IQM [95 % CI]"),
                       [(m, _interval(agg.iqm.get(m), agg.percent)) for m in methods
                        if m in agg.iqm])]
-    return lines + _poi_lines(w, agg, "RAPL-A2C", [m for m in methods if m != "RAPL-A2C"])
+    lines += _poi_lines(w, agg, "RAPL-A2C", [m for m in methods if m != "RAPL-A2C"])
+    return lines + profile_lines
+
+
+PROFILE_FILE = "fig3_profiles"
+
+
+def _profiles(w: _Writer, agg: _Aggregate, methods: Sequence[str]) -> list[str]:
+    """rliable's performance profiles of the final scores (`fig3_profiles.png/.csv`)."""
+    names = [m for m in methods if m in agg.matrices]
+    if not names:
+        return []
+    scale = 100.0 if agg.percent else 1.0
+    top = max(float(np.max(agg.matrices[m])) for m in names)
+    bottom = min(0.0, min(float(np.min(agg.matrices[m])) for m in names))
+    taus = np.linspace(bottom, max(top, bottom + 1e-6) * 1.05, 41)
+    profiles = performance_profiles({m: agg.matrices[m] for m in names}, taus, w.reps, w.seed)
+    w.csv(PROFILE_FILE, ("method", "tau", "fraction_above", "ci_lo", "ci_hi"),
+          [(m, float(t) * scale, p[i], lo[i], hi[i]) for m, (p, lo, hi) in profiles.items()
+           for i, t in enumerate(taus)])
+    fig = _figure(6.5, 4.2)
+    ax = fig.subplots()
+    for m, (p, lo, hi) in profiles.items():
+        ax.plot(taus * scale, p, color=_colour(m), label=m, linewidth=1.8)
+        ax.fill_between(taus * scale, lo, hi, color=_colour(m), alpha=0.15, linewidth=0)
+    unit = _norm_axis_label(w, agg).replace(", IQM", "").replace(" (%)", ", %")
+    ax.set_xlabel(f"threshold τ: {unit}")
+    ax.set_ylabel("fraction of runs with score > τ")
+    ax.set_ylim(-0.02, 1.02)
+    ax.legend(loc="best", framealpha=0.9)
+    fig.suptitle("Fig. 3 (profiles) — score distributions over all runs and games")
+    w.png(fig, PROFILE_FILE)
+    return ["", f"Performance profiles (rliable, `{PROFILE_FILE}.png`): the fraction of runs "
+            "of every game whose final score is above τ, with 95 % stratified-bootstrap "
+            "bands, on the games of the aggregate above."]
 
 
 def _legend_line(method: str) -> Any:
