@@ -246,21 +246,40 @@ def _children_of(pid: int) -> list[int]:
     return found
 
 
+def _script_processes() -> list[str]:
+    """The command lines of the processes running a script of `algos/`."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        if proc.name.isdigit():
+            try:
+                line = (proc / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+            except OSError:
+                continue
+            if "/algos/" in line:
+                found.append(line)
+    return found
+
+
 @pytest.mark.slow
-def test_a_killed_sweep_resumes_without_redoing_finished_runs(tmp_path):
+@pytest.mark.parametrize(("backend", "how"), [("local", signal.SIGKILL),
+                                               ("ray", signal.SIGTERM)])
+def test_a_killed_sweep_resumes_without_redoing_finished_runs(tmp_path, backend, how):
+    if backend == "ray":
+        pytest.importorskip("ray")
     out = tmp_path / "killed"
     cmd = [*CLI, "experiment", "run", "ablation", "--budget", "smoke", "--out", str(out),
-           "--jobs", "2"]
+           "--jobs", "2", "--backend", backend]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 240
     while len(_results(out)) < 2 and time.time() < deadline and proc.poll() is None:
         time.sleep(0.2)
     assert proc.poll() is None, "the sweep ended before it could be killed"
     children = _children_of(proc.pid)
-    os.kill(proc.pid, signal.SIGKILL)
-    proc.wait()
+    os.kill(proc.pid, how)
+    proc.wait(timeout=60)
     time.sleep(1.0)
     # Its runs died with it (none is left writing into the folder).
+    assert not [p for p in _script_processes() if str(out) in p]
     assert all(not Path(f"/proc/{c}").exists() or "zombie" in Path(f"/proc/{c}/status")
                .read_text().lower() for c in children)
     finished = _results(out)

@@ -209,6 +209,9 @@ class _RayBackend:
                 where = f"the Ray cluster at {address}" if address else "a local Ray instance"
                 raise UsageError(f"cannot start or join {where}: "
                                  f"{str(err).strip().splitlines()[0]}") from None
+        if self.started and _HANDLING_SIGTERM and (
+                threading.current_thread() is threading.main_thread()):
+            signal.signal(signal.SIGTERM, _sigterm)  # Ray's own handler would just exit
         self.task = ray.remote(num_cpus=cpus, num_gpus=1 if cuda else 0,
                                max_retries=0)(execute_run)
 
@@ -424,6 +427,12 @@ def _sigterm(*_: Any) -> None:
     raise KeyboardInterrupt
 
 
+_HANDLING_SIGTERM = False
+
+
 def install_signal_handlers() -> None:
-    """SIGTERM stops a sweep as Ctrl-C does: the runs' processes are stopped with it."""
+    """SIGTERM stops a sweep as Ctrl-C does: the runs' processes are stopped with it (and a
+    local Ray instance is shut down)."""
+    global _HANDLING_SIGTERM
+    _HANDLING_SIGTERM = True
     signal.signal(signal.SIGTERM, _sigterm)
