@@ -118,7 +118,7 @@ RETURN_TAG = "charts/episodic_return"
 REFERENCE_EPISODES = 10
 REFERENCE_SEED = 0
 _COINRUN_LEVELS = (("train", "train levels"), ("easy", "unseen easy"), ("hard", "hard"))
-_MAX_MISSING_LISTED = 40
+_MAX_MISSING_LISTED = 12
 
 
 # -- the sweep's runs ---------------------------------------------------------------------------

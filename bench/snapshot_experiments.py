@@ -1,0 +1,73 @@
+"""Copy what a sweep folder should keep in the repository: the report, the manifests and every
+finished run's config and result (no checkpoints, no TensorBoard logs), plus the provenance.
+
+    python bench/snapshot_experiments.py SWEEP bench/results/experiments/cpu \\
+        --command "routine-gym experiment run NAME --budget cpu --out SWEEP --jobs 2"
+
+Writes DEST/report/ (the figures, CSVs and report.md of `routine-gym experiment report SWEEP`,
+which is run first), DEST/{experiment}.json, DEST/runs/KEY/{config,result}.json and
+DEST/provenance.json (machine, date, commit, command, runs finished per experiment).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import base_machine_info, load_average  # noqa: E402
+
+from routine_gym.atomic import atomic_write_text  # noqa: E402
+from routine_gym.experiments.report import write_report  # noqa: E402
+from routine_gym.experiments.specs import EXPERIMENTS  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("sweep", type=Path, help="the sweep folder (--out of experiment run)")
+    parser.add_argument("dest", type=Path, help="where the snapshot goes")
+    parser.add_argument("--command", action="append", default=[],
+                        help="the command that ran the sweep (repeatable)")
+    args = parser.parse_args()
+
+    write_report(args.sweep)
+    dest = args.dest
+    if (dest / "report").exists():
+        shutil.rmtree(dest / "report")
+    shutil.copytree(args.sweep / "report", dest / "report")
+    finished: dict[str, dict[str, int]] = {}
+    for name in EXPERIMENTS:
+        manifest = args.sweep / f"{name}.json"
+        if not manifest.exists():
+            continue
+        shutil.copy2(manifest, dest / manifest.name)
+        keys = [r["key"] for r in json.loads(manifest.read_text())["runs"]]
+        done = 0
+        for key in keys:
+            for file in ("config.json", "result.json"):
+                source = args.sweep / "runs" / key / file
+                if source.exists():
+                    (dest / "runs" / key).mkdir(parents=True, exist_ok=True)
+                    shutil.copy2(source, dest / "runs" / key / file)
+            done += (args.sweep / "runs" / key / "result.json").exists()
+        finished[name] = {"runs": len(set(keys)), "finished": done}
+    commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True,
+                            text=True).stdout.strip()
+    provenance = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+                  "commit": commit, "commands": args.command, "experiments": finished,
+                  "machine": {**base_machine_info(), "load_average": load_average()}}
+    atomic_write_text(dest / "provenance.json", json.dumps(provenance, indent=2) + "\n")
+    for name, counts in finished.items():
+        print(f"{name:12s} {counts['finished']}/{counts['runs']} runs finished")
+    print(f"snapshot in {dest}")
+
+
+if __name__ == "__main__":
+    main()
