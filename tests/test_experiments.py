@@ -345,3 +345,30 @@ def test_cli_list_shows_every_experiment_with_its_runs_per_budget():
         assert name in rows
     assert "36 runs 36.0M steps" in rows["rl"] and "325 runs" in rows["rl"]
     assert "110 runs" in rows["ablation"]
+
+
+def test_a_sweep_of_some_seeds_lists_the_whole_experiment(tmp_path, monkeypatch):
+    ran = []
+    monkeypatch.setattr(sweep, "_LocalBackend", lambda jobs: _NoRuns(ran))
+    sweep.run_experiment("rl", "cpu", tmp_path, seeds=[1], envs=["MinAtar/Breakout-v1"],
+                         stream=io.StringIO())
+    manifest = json.loads((tmp_path / "rl.json").read_text())
+    assert len(manifest["runs"]) == 36  # the whole experiment: the report counts the rest
+    assert len(ran) == 2  # only A2C and RAPL-A2C, seed 1, Breakout ran
+
+
+class _NoRuns:
+    """A backend that records what it was asked to run and finishes it at once."""
+
+    def __init__(self, ran: list) -> None:
+        self.ran = ran
+
+    def submit(self, config, runs, cuda):
+        self.ran.append(config["key"])
+        return config["key"]
+
+    def wait(self, handles, timeout):
+        return [(h, {"key": h}) for h in handles]
+
+    def close(self):
+        pass

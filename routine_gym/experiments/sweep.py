@@ -355,7 +355,9 @@ def run_experiment(name: str, budget: str, out: str | Path, *, jobs: int = 1,
         raise UsageError(f"--out {out} is a file, not a folder")
     runs = out / "runs"
     runs.mkdir(parents=True, exist_ok=True)
-    _write_manifest(out, name, budget, entries)
+    # The manifest lists the whole experiment, so a report of a sweep run seed by seed (or game
+    # by game) counts the runs still to do as missing.
+    _write_manifest(out, name, budget, build(name, budget) if seeds or envs else entries)
     specs = {e.run.key: e.run for e in entries}
     for key, spec in specs.items():
         (runs / key).mkdir(exist_ok=True)
