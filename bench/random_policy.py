@@ -25,8 +25,6 @@ from routine_gym.evaluation import random_policy_scores
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
-random_scores = random_policy_scores  # the name the other benchmarks import
-
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -41,7 +39,7 @@ def main() -> None:
     rows = []
     for env_id in env_ids:
         start = time.perf_counter()
-        row = random_scores(env_id, args.episodes, args.seed)
+        row = random_policy_scores(env_id, args.episodes, args.seed)
         row["seconds"] = time.perf_counter() - start
         rows.append(row)
         print(f"{env_id:24s} random policy {row['mean']:9.1f} ± {row['std']:7.1f} "

@@ -559,6 +559,15 @@ def _interval(estimate: tuple[float, float, float] | None, percent: bool = True)
 # -- shared by the experiments -------------------------------------------------------------------
 
 
+def _per_env_means(runs: Sequence[Run], envs: Sequence[str]) -> list[str]:
+    """A table's per-game cells: the mean over seeds of the runs' final scores, or – for none."""
+    cells = []
+    for e in envs:
+        scores = [r.score for r in runs if r.env_id == e]
+        cells.append(_num(float(np.mean(scores)), 1) if scores else "–")
+    return cells
+
+
 def _groups(runs: Iterable[Run], label: Callable[[Run], str | None]) -> dict[str, list[Run]]:
     """The finished main runs by label (a label of None leaves the run out)."""
     groups: dict[str, list[Run]] = {}
@@ -695,10 +704,7 @@ def _imitation(w: _Writer, runs: list[Run]) -> list[str]:
               *[f"{labels[e]} return" for e in envs], "paper alignment", "paper HNS (Atari)")
     table = []
     for m in methods:
-        per_env = []
-        for e in envs:
-            scores = [r.score for r in groups[m] if r.env_id == e]
-            per_env.append(_num(float(np.mean(scores)), 1) if scores else "–")
+        per_env = _per_env_means(groups[m], envs)
         paper_align, paper_hns = PAPER_TABLE1.get(m, (None, None))
         a_mean, a_std = alignment[m]
         table.append((m, f"{_num(a_mean, 3)} ± {_num(a_std, 3)}" if math.isfinite(a_mean) else "–",
@@ -1061,10 +1067,7 @@ def _ablation(w: _Writer, runs: list[Run]) -> list[str]:
     labels = _game_labels(envs)
     table = []
     for n in names:
-        per_env = []
-        for e in envs:
-            scores = [r.score for r in groups[n] if r.env_id == e]
-            per_env.append(_num(float(np.mean(scores)), 1) if scores else "–")
+        per_env = _per_env_means(groups[n], envs)
         table.append((n, _interval(agg.iqm.get(n), agg.percent), *per_env))
     return ["Variants of RAPL-A2C's routine discovery (Full: the paper's; RR, PbE, RF, RP: "
             "other proposers; ID: the demo of an expert trained a tenth as long), and A2C "

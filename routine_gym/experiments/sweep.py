@@ -108,14 +108,21 @@ _CHILDREN: set[subprocess.Popen] = set()
 _CHILDREN_LOCK = threading.Lock()
 
 
-def _last_line(path: Path) -> str:
+def _tail(path: Path, size: int) -> bytes | None:
+    """The last `size` bytes of a file, None when it cannot be read."""
     try:
         with open(path, "rb") as fh:
-            fh.seek(max(0, fh.seek(0, os.SEEK_END) - 4096))
-            lines = [ln.strip() for ln in fh.read().decode(errors="replace").splitlines()]
+            fh.seek(max(0, fh.seek(0, os.SEEK_END) - size))
+            return fh.read()
     except OSError:
+        return None
+
+
+def _last_line(path: Path) -> str:
+    tail = _tail(path, 4096)
+    if tail is None:
         return "(no log)"
-    lines = [ln for ln in lines if ln]
+    lines = [ln.strip() for ln in tail.decode(errors="replace").splitlines() if ln.strip()]
     return lines[-1] if lines else "(no output)"
 
 
@@ -274,12 +281,7 @@ def _write_manifest(out: Path, name: str, budget: str, entries: Sequence[Entry])
 
 def _steps_done(runs: Path, key: str) -> int:
     """The last `step N/` a run printed (0 before its first progress line)."""
-    try:
-        with open(runs / key / "log.txt", "rb") as fh:
-            fh.seek(max(0, fh.seek(0, os.SEEK_END) - 8192))
-            found = _STEP_LINE.findall(fh.read())
-    except OSError:
-        return 0
+    found = _STEP_LINE.findall(_tail(runs / key / "log.txt", 8192) or b"")
     return int(found[-1].replace(b",", b"")) if found else 0
 
 
@@ -314,9 +316,10 @@ class _Progress:
         if self.start_steps is None:
             self.start_steps = steps
         rate = (steps - self.start_steps) / max(now - self.start, 1e-9)
-        eta = _duration((self.total - steps) / rate) if rate > 0 and steps < self.total else "–"
         if steps >= self.total:
             eta = "0m00s"
+        else:
+            eta = _duration((self.total - steps) / rate) if rate > 0 else "–"
         line = (f"[{self.name}] runs {len(done)}/{len(self.specs)} done, {len(running)} running, "
                 f"{len(failed)} failed · agent steps {steps:,}/{self.total:,} · "
                 f"{_duration(now - self.start)} elapsed · ETA {eta}")
