@@ -176,7 +176,6 @@ class _LocalBackend:
     def __init__(self, jobs: int) -> None:
         from concurrent.futures import ThreadPoolExecutor
 
-        self.jobs = jobs
         self.pool = ThreadPoolExecutor(max_workers=jobs)
 
     def submit(self, config: dict, runs: Path, cuda: bool) -> Any:
