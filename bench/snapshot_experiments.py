@@ -1,12 +1,15 @@
 """Copy what a sweep folder should keep in the repository: the report, the manifests and every
-finished run's config and result (no checkpoints, no TensorBoard logs), plus the provenance.
+finished run's config and result (with its binned training curve) and each expert's demo (no
+checkpoints, no TensorBoard logs), plus the provenance. The snapshot is itself a sweep folder:
+copy it and run the same command with `--out` the copy to continue the sweep where it stopped.
 
     python bench/snapshot_experiments.py SWEEP bench/results/experiments/cpu \\
         --command "routine-gym experiment run NAME --budget cpu --out SWEEP --jobs 2"
 
 Writes DEST/report/ (the figures, CSVs and report.md of `routine-gym experiment report SWEEP`,
-which is run first), DEST/{experiment}.json, DEST/runs/KEY/{config,result}.json and
-DEST/provenance.json (machine, date, commit, command, runs finished per experiment).
+which is run first), DEST/{experiment}.json, DEST/runs/KEY/{config,result}.json (and
+demo.npz) and DEST/provenance.json (machine, date, commit, command, runs finished per
+experiment, and one line per snapshot so far: what ran when).
 """
 
 from __future__ import annotations
@@ -51,7 +54,7 @@ def main() -> None:
         keys = [r["key"] for r in json.loads(manifest.read_text())["runs"]]
         done = 0
         for key in keys:
-            for file in ("config.json", "result.json"):
+            for file in ("config.json", "result.json", "demo.npz"):
                 source = args.sweep / "runs" / key / file
                 if source.exists():
                     (dest / "runs" / key).mkdir(parents=True, exist_ok=True)
@@ -60,8 +63,14 @@ def main() -> None:
         finished[name] = {"runs": len(set(keys)), "finished": done}
     commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True,
                             text=True).stdout.strip()
-    provenance = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-                  "commit": commit, "commands": args.command, "experiments": finished,
+    date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    history = []
+    if (dest / "provenance.json").exists():
+        history = json.loads((dest / "provenance.json").read_text()).get("snapshots", [])
+    history.append({"date": date, "commit": commit,
+                    "finished": sum(c["finished"] for c in finished.values())})
+    provenance = {"date": date, "commit": commit, "commands": args.command,
+                  "experiments": finished, "snapshots": history,
                   "machine": {**base_machine_info(), "load_average": load_average()}}
     atomic_write_text(dest / "provenance.json", json.dumps(provenance, indent=2) + "\n")
     for name, counts in finished.items():

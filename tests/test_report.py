@@ -220,6 +220,40 @@ def test_fig3_csv_has_mean_and_std_of_the_binned_curves(full):
     assert float(rows[100.0]["mean_return"]) == 9.0 and rows[100.0]["runs"] == "2"
 
 
+def test_curve_bins_sums_and_counts_each_bin_by_hand():
+    sums, counts = report.curve_bins([3, 4, 9, 12], [5.0, 7.0, 2.0, 1.0], total_steps=10, bins=5)
+    # (2, 4] holds 5 and 7; (8, 10] holds 2 and the episode past the budget (1).
+    assert sums.tolist() == [0.0, 12.0, 0.0, 0.0, 3.0]
+    assert counts.tolist() == [0, 2, 0, 0, 2]
+    assert report.curve_values(sums, counts)[1:].tolist() == [6.0, 6.0, 6.0, 1.5]
+
+
+def test_fig3_from_the_curves_kept_in_result_json_without_tensorboard_logs(full, tmp_path):
+    """A committed snapshot keeps no TensorBoard log: the binned curve of `result.json` draws
+    the same Fig. 3."""
+    import shutil
+
+    out, _, _ = full
+    copy = tmp_path / "snapshot"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("report"))
+    logs = list(copy.glob("runs/*/*/events.out.tfevents.*"))
+    assert logs
+    for log in logs:
+        steps, returns = report.read_episodic_returns(log.parent)
+        result_path = log.parent.parent / "result.json"
+        result = json.loads(result_path.read_text())
+        sums, counts = report.curve_bins(steps, returns, STEPS)
+        result["curve"] = {"total_steps": STEPS, "bins": report.CURVE_BINS,
+                           "sums": sums.tolist(), "counts": counts.tolist()}
+        result_path.write_text(json.dumps(result))
+        shutil.rmtree(log.parent)
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        _patch_references(monkeypatch)
+        report.write_report(copy, reps=REPS, seed=0)
+    assert _rows(copy / "report" / "fig3_curves.csv") == _rows(
+        out / "report" / "fig3_curves.csv")
+
+
 def test_read_episodic_returns_drops_what_a_resumed_run_relogged(tmp_path):
     from torch.utils.tensorboard import SummaryWriter
 

@@ -61,6 +61,8 @@ __all__ = [
     "Reference",
     "Run",
     "bin_curve",
+    "curve_bins",
+    "curve_values",
     "demo_score",
     "iqm_intervals",
     "load_runs",
@@ -165,6 +167,7 @@ class Manifest(NamedTuple):
     budget: str
     description: str
     runs: list[Run]
+    left_out: list[dict[str, Any]] = []  # settings without runs, each with its why
 
 
 def load_runs(out: str | Path, experiment: str,
@@ -197,7 +200,8 @@ def load_runs(out: str | Path, experiment: str,
                             folder=out / "runs" / key, result=results[key]))
         except (KeyError, TypeError) as exc:
             raise UsageError(f"{path}: a run entry lacks {exc} ({entry!r})") from None
-    return Manifest(str(manifest.get("budget", "?")), str(manifest.get("description", "")), runs)
+    return Manifest(str(manifest.get("budget", "?")), str(manifest.get("description", "")), runs,
+                    list(manifest.get("left_out") or []))
 
 
 # -- normalisation ------------------------------------------------------------------------------
@@ -429,6 +433,43 @@ def read_episodic_returns(folder: str | Path, tag: str = RETURN_TAG
             np.array([p[1] for p in points], dtype=np.float64))
 
 
+def curve_bins(steps: Sequence[int] | np.ndarray, returns: Sequence[float] | np.ndarray,
+               total_steps: int, bins: int = CURVE_BINS) -> tuple[np.ndarray, np.ndarray]:
+    """`(sums, counts)`: the summed return and the number of the episodes that ended in each of
+    `bins` equal step bins from 0 to `total_steps` (bin `b` is `(b·w, (b+1)·w]`,
+    `w = total_steps / bins`; episodes past `total_steps` count in the last bin). What a sweep
+    keeps of a run's training curve (`result.json`'s `curve`), so the report needs no
+    TensorBoard log.
+
+    Example:
+        >>> sums, counts = curve_bins([3, 4, 9], [5.0, 7.0, 2.0], total_steps=10, bins=5)
+        >>> sums.tolist(), counts.tolist()
+        ([0.0, 12.0, 0.0, 0.0, 2.0], [0, 2, 0, 0, 1])
+    """
+    if bins < 1 or total_steps <= 0:
+        raise ValueError(f"bins and total_steps need to be ≥ 1, actual values: {bins}, "
+                         f"{total_steps}")
+    edges = np.linspace(0.0, float(total_steps), bins + 1)
+    steps = np.asarray(steps, dtype=np.float64)
+    returns = np.asarray(returns, dtype=np.float64)
+    index = np.clip(np.searchsorted(edges[1:], steps, side="left"), 0, bins - 1)
+    return (np.bincount(index, weights=returns, minlength=bins).astype(np.float64),
+            np.bincount(index, minlength=bins))
+
+
+def curve_values(sums: Sequence[float] | np.ndarray, counts: Sequence[int] | np.ndarray
+                 ) -> np.ndarray:
+    """Each bin's mean return from `curve_bins`' sums and counts; an empty bin carries the
+    previous value forward, and bins before the first episode are NaN."""
+    values = np.full(len(sums), np.nan)
+    last = np.nan
+    for b, (total, count) in enumerate(zip(sums, counts, strict=True)):
+        if count:
+            last = total / count
+        values[b] = last
+    return values
+
+
 def bin_curve(steps: Sequence[int] | np.ndarray, returns: Sequence[float] | np.ndarray,
               total_steps: int, bins: int = CURVE_BINS) -> tuple[np.ndarray, np.ndarray]:
     """A training curve on a common grid: `bins` equal step bins from 0 to `total_steps`.
@@ -443,22 +484,22 @@ def bin_curve(steps: Sequence[int] | np.ndarray, returns: Sequence[float] | np.n
         >>> x.tolist(), y.tolist()
         ([2.0, 4.0, 6.0, 8.0, 10.0], [nan, 6.0, 6.0, 6.0, 2.0])
     """
-    if bins < 1 or total_steps <= 0:
-        raise ValueError(f"bins and total_steps need to be ≥ 1, actual values: {bins}, "
-                         f"{total_steps}")
-    edges = np.linspace(0.0, float(total_steps), bins + 1)
-    steps = np.asarray(steps, dtype=np.float64)
-    returns = np.asarray(returns, dtype=np.float64)
-    index = np.clip(np.searchsorted(edges[1:], steps, side="left"), 0, bins - 1)
-    sums = np.bincount(index, weights=returns, minlength=bins)
-    counts = np.bincount(index, minlength=bins)
-    values = np.full(bins, np.nan)
-    last = np.nan
-    for b in range(bins):
-        if counts[b]:
-            last = sums[b] / counts[b]
-        values[b] = last
-    return edges[1:], values
+    sums, counts = curve_bins(steps, returns, total_steps, bins)
+    return np.linspace(0.0, float(total_steps), bins + 1)[1:], curve_values(sums, counts)
+
+
+def _run_curve(run: Run, total: int) -> np.ndarray | None:
+    """A run's binned curve on the grid `(0, total]`: from its `result.json` when the sweep kept
+    it there on this grid, else from its TensorBoard log; None when it logged no episode."""
+    kept = run.result.get("curve")
+    if kept and kept.get("bins") == CURVE_BINS and kept.get("total_steps") == total:
+        if not any(kept["counts"]):
+            return None
+        return curve_values(kept["sums"], kept["counts"])
+    steps, returns = read_episodic_returns(_curve_folder(run))
+    if steps.size == 0:
+        return None
+    return bin_curve(steps, returns, total or max(int(steps.max()), 1))[1]
 
 
 # -- writing -------------------------------------------------------------------------------------
@@ -808,12 +849,12 @@ def _curves(w: _Writer, runs: list[Run]) -> list[str]:
             total = max(r.steps for r in group)
             binned = []
             for run in group:
-                steps, returns = read_episodic_returns(_curve_folder(run))
-                if steps.size == 0:
+                values = _run_curve(run, total)
+                if values is None:
                     no_log.append(run.describe())
                     continue
-                x, values = bin_curve(steps, returns, total or max(int(steps.max()), 1))
                 binned.append(values)
+            x = np.linspace(0.0, float(total or 1), CURVE_BINS + 1)[1:]
             if binned:
                 values = np.vstack(binned)
                 count = np.sum(np.isfinite(values), axis=0)
@@ -1169,6 +1210,10 @@ def write_report(out: str | Path, *, reps: int = 2000, seed: int = 0) -> list[Pa
             lines += [f"not run (no `{name}.json` in the sweep folder).", ""]
             continue
         lines += _status_lines(manifest.runs)
+        for gap in manifest.left_out:
+            setting = ", ".join(f"{k} = {v}" for k, v in (gap.get("variant") or {}).items())
+            lines += [f"Left out: {gap.get('env_id')}"
+                      f"{f' at {setting}' if setting else ''}: {gap.get('why', '')}.", ""]
         main = [r for r in manifest.runs if r.role == "main"]
         if not any(r.finished for r in main):
             lines += ["No finished run: no figure.", ""]

@@ -23,6 +23,7 @@ run's own folder; the sweep resolves both, and they keep keys independent of `--
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 from collections.abc import Callable, Sequence
@@ -38,6 +39,7 @@ __all__ = [
     "RunSpec",
     "build",
     "count_runs",
+    "left_out",
 ]
 
 MINATAR = tuple(f"MinAtar/{game}-v1" for game in
@@ -158,6 +160,24 @@ def _has_shipped_demo(env_id: str) -> bool:
     return env_id in DEMO_SUITE or env_id in BUILT_IN_DEMOS
 
 
+@functools.cache
+def _shipped_demo_has_routine(env_id: str, min_length: int) -> bool:
+    """Whether the miner finds a routine of ≥ `min_length` actions in `env_id`'s shipped demo
+    (true for a game without one: its expert's demo is recorded by the sweep, and a run that
+    finds none fails naming the reason)."""
+    import warnings
+
+    from routine_gym.loading import load_demo, load_routines
+
+    if not _has_shipped_demo(env_id):
+        return True
+    demo, path = load_demo(env_id, None, purpose="the scalability experiment")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return load_routines(env_id, 1, demo=demo, min_length=min_length,
+                             source={"path": path}) is not None
+
+
 #: Scripts that step several envs (`--num-envs`), and BC's budget flag.
 VECTOR_SCRIPTS = ("rapl_a2c", "option_critic", "compile_a2c", "gail")
 STEPS_FLAG = {"bc": "gradient-steps"}
@@ -189,6 +209,8 @@ class _Builder:
     def __init__(self, budget: Budget) -> None:
         self.budget = budget
         self.entries: dict[tuple[str, str, int, str], Entry] = {}
+        #: Settings of the experiment that have no runs, and why (the manifest lists them).
+        self.left_out: list[dict[str, Any]] = []
 
     def add(self, entry: Entry) -> Entry:
         label = (entry.run.key, entry.method, entry.seed, json.dumps(entry.variant, sort_keys=True))
@@ -278,9 +300,18 @@ def _scalability(b: _Builder) -> None:
     settings = [(k, 2) for k in budget.scalability_k]
     settings += [(3, length) for length in budget.scalability_lengths if length != 2]
     for env_id in budget.games:
+        # A minimum length the game's shipped demo has no routine of: no runs, a manifest note.
+        usable = []
+        for k, length in settings:
+            if length == 2 or _shipped_demo_has_routine(env_id, length):
+                usable.append((k, length))
+            else:
+                b.left_out.append({
+                    "env_id": env_id, "variant": {"K": k, "min_length": length},
+                    "why": f"its shipped demo has no routine of ≥ {length} actions"})
         for seed in b.seeds():
             b.a2c("A2C", env_id, seed)
-            for k, length in settings:
+            for k, length in usable:
                 for method in ("RAPL-A2C", "MacroAction"):
                     b.a2c(method, env_id, seed, {"K": k, "min_length": length}, k=k,
                           min_length=length)
@@ -340,6 +371,19 @@ def build(name: str, budget: str, seeds: Sequence[int] | None = None,
     Raises:
         UsageError: an unknown experiment, budget, seed or env.
     """
+    return _build(name, budget, seeds, envs)[0]
+
+
+def left_out(name: str, budget: str, envs: Sequence[str] | None = None
+             ) -> list[dict[str, Any]]:
+    """The settings of experiment `name` at `budget` that have no runs, each with its env,
+    variant and why (the scalability experiment's minimum lengths a shipped demo has no
+    routine of)."""
+    return _build(name, budget, None, envs)[1]
+
+
+def _build(name: str, budget: str, seeds: Sequence[int] | None,
+           envs: Sequence[str] | None) -> tuple[list[Entry], list[dict[str, Any]]]:
     from dataclasses import replace
 
     from routine_gym.errors import UsageError
@@ -373,7 +417,7 @@ def build(name: str, budget: str, seeds: Sequence[int] | None = None,
             raise UsageError(f"--seeds {bad[0]} is outside the {budget} budget's seeds "
                              f"1..{sizes.seeds}")
         entries = [e for e in entries if e.role != "main" or e.seed in set(seeds)]
-    return entries
+    return entries, builder.left_out
 
 
 def count_runs(name: str, budget: str) -> tuple[int, int]:

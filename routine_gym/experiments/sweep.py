@@ -2,10 +2,12 @@
 
 Folder layout of `--out OUT`:
 
-    OUT/{experiment}.json            the manifest: budget, version and every run with its labels
+    OUT/{experiment}.json            the manifest: budget, version, every run with its labels
+                                     and the settings left out (`left_out`, with why)
     OUT/runs/{key}/config.json       the run's script, flags, needed runs and agent steps
     OUT/runs/{key}/log.txt           the script's output (appended by every attempt)
-    OUT/runs/{key}/result.json       written when the run finished: its eval.json(s)
+    OUT/runs/{key}/result.json       written when the run finished: its eval.json(s) and
+                                     its training curve binned for Fig. 3
     OUT/runs/{key}/{script's run}/   the script's own folder: TensorBoard log, checkpoint.pt,
                                      eval.json (and `demo.npz` beside it for an expert)
 
@@ -41,7 +43,14 @@ from typing import Any
 
 from routine_gym.atomic import atomic_write_text
 from routine_gym.errors import UsageError
-from routine_gym.experiments.specs import BUDGETS, EXPERIMENTS, Entry, RunSpec, build
+from routine_gym.experiments.specs import (
+    BUDGETS,
+    EXPERIMENTS,
+    Entry,
+    RunSpec,
+    build,
+    left_out,
+)
 
 __all__ = ["SweepSummary", "execute_run", "run_experiment", "script_path"]
 
@@ -126,6 +135,20 @@ def _last_line(path: Path) -> str:
     return lines[-1] if lines else "(no output)"
 
 
+def _curve(run_dir: Path, total_steps: int) -> dict[str, Any] | None:
+    """The run's training episodes binned as the report bins them (`report.curve_bins`), so a
+    snapshot of `result.json`s draws Fig. 3 without the TensorBoard logs; None without a
+    budget."""
+    from routine_gym.experiments.report import CURVE_BINS, curve_bins, read_episodic_returns
+
+    if total_steps <= 0:
+        return None
+    steps, returns = read_episodic_returns(run_dir)
+    sums, counts = curve_bins(steps, returns, total_steps)
+    return {"total_steps": total_steps, "bins": CURVE_BINS,
+            "sums": [round(float(v), 6) for v in sums], "counts": counts.tolist()}
+
+
 def execute_run(config: dict[str, Any], runs_dir: str, cuda: bool = False) -> dict[str, Any]:
     """Run (or resume) one run to the end and write its `result.json`; returns the result, or
     `{"key", "error"}` with the last line of its log. Used by both backends (a Ray task runs it
@@ -156,6 +179,7 @@ def execute_run(config: dict[str, Any], runs_dir: str, cuda: bool = False) -> di
     extra = {p.stem[len("eval-"):]: json.loads(p.read_text()) for p in run_dir.glob("eval-*.json")}
     result = {"key": config["key"], "run_dir": run_dir.name,
               "eval": json.loads(evals[-1].read_text()), "evals": extra,
+              "curve": _curve(run_dir, int(config.get("steps") or 0)),
               "seconds": time.time() - start, "finished": _now()}
     atomic_write_text(folder / "result.json", json.dumps(result, indent=2) + "\n")
     return result
@@ -272,6 +296,7 @@ def _write_manifest(out: Path, name: str, budget: str, entries: Sequence[Entry])
     manifest = {"experiment": name, "version": experiment.version, "budget": budget,
                 "title": experiment.title, "figure": experiment.figure,
                 "description": BUDGETS[budget].description, "updated": _now(),
+                "left_out": left_out(name, budget),
                 "runs": sorted((json.loads(r) for r in rows),
                                key=lambda r: (r["role"] != "expert", r["env_id"], r["method"],
                                               json.dumps(r["variant"]), r["seed"]))}
