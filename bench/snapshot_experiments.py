@@ -40,12 +40,21 @@ def main() -> None:
                         help="the command that ran the sweep (repeatable)")
     args = parser.parse_args()
 
-    write_report(args.sweep)
     dest = args.dest
+    # The sweep folder is the truth and the snapshot mirrors it; a result only the snapshot has
+    # means the sweep did not start from it, and copying would throw that result away.
+    lost = sorted(p.parent.name for p in dest.glob("runs/*/result.json")
+                  if not (args.sweep / "runs" / p.parent.name / "result.json").exists())
+    if lost:
+        sys.exit(f"{dest} holds {len(lost)} finished run(s) that {args.sweep} lacks (first: "
+                 f"{lost[0]}); continue the sweep from the snapshot (cp -r {dest} SWEEP) "
+                 "before snapshotting it")
+    write_report(args.sweep)
     if (dest / "report").exists():
         shutil.rmtree(dest / "report")
     shutil.copytree(args.sweep / "report", dest / "report")
     finished: dict[str, dict[str, int]] = {}
+    listed: set[str] = set()
     for name in EXPERIMENTS:
         manifest = args.sweep / f"{name}.json"
         if not manifest.exists():
@@ -61,6 +70,13 @@ def main() -> None:
                     shutil.copy2(source, dest / "runs" / key / file)
             done += (args.sweep / "runs" / key / "result.json").exists()
         finished[name] = {"runs": len(set(keys)), "finished": done}
+        listed.update(keys)
+    for name in EXPERIMENTS:
+        if name not in finished:
+            (dest / f"{name}.json").unlink(missing_ok=True)
+    for folder in dest.glob("runs/*"):
+        if folder.name not in listed:
+            shutil.rmtree(folder)
     commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True,
                             text=True).stdout.strip()
     date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())

@@ -16,11 +16,13 @@ from pathlib import Path
 import pytest
 
 from routine_gym.errors import UsageError
+from routine_gym.experiments import report as report_mod
 from routine_gym.experiments import specs, sweep
 from routine_gym.experiments.specs import BUDGETS, EXPERIMENTS, RunSpec, build, count_runs
 
 NAMES = ["imitation", "rl", "curves", "coinrun", "scalability", "ablation"]
 CLI = [sys.executable, "-m", "routine_gym.cli"]
+REPO = Path(__file__).resolve().parents[1]
 
 
 # -- specs ---------------------------------------------------------------------------------------
@@ -233,6 +235,44 @@ def test_report_of_a_real_smoke_sweep_writes_six_figures_csvs_and_report_md(loca
     for heading in ("Table 1", "Fig. 2", "Fig. 3", "Fig. 4", "Fig. 5", "Fig. 6"):
         assert f"## {heading} " in text
     assert "8 of 8 runs finished" in text
+
+
+@pytest.mark.slow
+def test_a_snapshot_keeps_results_not_checkpoints_and_continues_as_a_sweep(local_sweep,
+                                                                          tmp_path):
+    import shutil
+
+    out, _ = local_sweep
+    snapshot = REPO / "bench" / "snapshot_experiments.py"
+    dest = tmp_path / "committed"
+    proc = subprocess.run([sys.executable, str(snapshot), str(out), str(dest), "--command",
+                           "routine-gym experiment run all --budget smoke"],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert "ablation     8/8 runs finished" in proc.stdout
+    kept = {p.relative_to(dest).parts[2] for p in dest.glob("runs/*/*")}
+    assert kept == {"config.json", "result.json", "demo.npz"}  # no logs, no checkpoints
+    assert {p.parent.name for p in dest.glob("runs/*/result.json")} == set(_results(out))
+    provenance = json.loads((dest / "provenance.json").read_text())
+    assert provenance["experiments"]["rl"] == {"runs": 2, "finished": 2}
+    assert len(provenance["snapshots"]) == 1
+    # A new machine continues from the snapshot: nothing is rerun, and Fig. 3 is drawn from
+    # the curves kept in result.json (the TensorBoard logs stayed behind).
+    again = tmp_path / "again"
+    shutil.copytree(dest, again)
+    assert "0 to run" in _sweep_all(again, "local").getvalue()
+    assert not list(again.glob("runs/*/*/events.out.tfevents.*"))
+    report_mod.write_report(again, reps=100)
+    report_mod.write_report(out, reps=100)
+    curves = (out / "report" / "fig3_curves.csv").read_text()
+    assert (again / "report" / "fig3_curves.csv").read_text() == curves
+    assert curves.count("\n") == 1 + 5 * report_mod.CURVE_BINS  # every method has its curve
+    # Snapshotting a sweep that did not start from the snapshot would lose its results.
+    proc = subprocess.run([sys.executable, str(snapshot), str(tmp_path / "fresh"), str(dest)],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 1
+    assert proc.stderr.strip().endswith("before snapshotting it")
+    assert "finished run(s) that" in proc.stderr and proc.stderr.count("\n") == 1
 
 
 @pytest.mark.slow
