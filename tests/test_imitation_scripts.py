@@ -205,6 +205,17 @@ def test_more_routines_than_the_library_holds_warns_and_uses_all_of_them(tmp_pat
         load_routines("MiniQbert-v0", -1, demo=demo)
 
 
+def test_no_routine_of_the_asked_minimum_length_is_a_one_line_error_naming_it():
+    # MiniQbert's shipped demo yields two routines, both shorter than 20 actions.
+    demo = Demo.load(shipped_demo_path("MiniQbert-v0"))
+    library = load_routines("MiniQbert-v0", 2, demo=demo)
+    assert max(len(r) for r in library.routines) < 20
+    with pytest.raises(ValueError, match="^--mode rapl found no routine of ≥ 20 actions in "
+                                         "the demo; use a smaller --min-routine-length") as err:
+        load_routines("MiniQbert-v0", 3, demo=demo, min_length=20, required="--mode rapl")
+    assert "\n" not in str(err.value)
+
+
 # -- Atari and CoinRun ------------------------------------------------------------------------
 
 
