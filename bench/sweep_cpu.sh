@@ -1,0 +1,25 @@
+#!/usr/bin/env bash
+# The cpu budget of the six experiments, one whole experiment after another (rl first), into
+# SWEEP; rerun the same command to continue after a kill or on a new machine. A SWEEP that does
+# not exist yet starts as a copy of the committed snapshot (bench/results/experiments/cpu), so
+# runs finished in earlier sessions are not redone. Then snapshot it:
+#
+#     bench/sweep_cpu.sh /work/sweeps/cpu 2
+#     python bench/snapshot_experiments.py /work/sweeps/cpu bench/results/experiments/cpu \
+#         --command "bench/sweep_cpu.sh SWEEP 2"
+set -euo pipefail
+SWEEP=${1:?usage: bench/sweep_cpu.sh SWEEP [JOBS]}
+JOBS=${2:-2}
+PYTHON=${PYTHON:-python}
+BUDGET=${BUDGET:-cpu}  # BUDGET=smoke tries the script in seconds
+SNAPSHOT="$(cd "$(dirname "$0")" && pwd)/results/experiments/$BUDGET"
+if [ ! -e "$SWEEP" ] && [ -d "$SNAPSHOT/runs" ]; then
+  echo "starting $SWEEP from the snapshot $SNAPSHOT"
+  mkdir -p "$(dirname "$SWEEP")"
+  cp -r "$SNAPSHOT" "$SWEEP"
+fi
+for NAME in rl curves coinrun ablation imitation scalability; do
+  echo "=== $(date -u +%FT%TZ) $NAME"
+  "$PYTHON" -m routine_gym.cli experiment run "$NAME" --budget "$BUDGET" --out "$SWEEP" --jobs "$JOBS"
+done
+echo "=== $(date -u +%FT%TZ) all six finished"
