@@ -207,12 +207,12 @@ def load_routines(
             )
         where = (source or {}).get("path", "the demo")
     if len(library) == 0:
-        if required is not None and min_length > 2:
-            raise UsageError(
-                f"{required} found no routine of ≥ {min_length} actions in {where}; use a "
-                "smaller --min-routine-length or a longer demo"
-            )
         if required is not None:
+            if min_length > 2:
+                raise UsageError(
+                    f"{required} found no routine of ≥ {min_length} actions in {where}; use a "
+                    "smaller --min-routine-length or a longer demo"
+                )
             raise UsageError(
                 f"{required} found no routine in {where} (the demo may be too short or too "
                 "varied); use a longer demo, a smaller --alpha, or no routines "

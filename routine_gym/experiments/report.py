@@ -453,7 +453,7 @@ def curve_bins(steps: Sequence[int] | np.ndarray, returns: Sequence[float] | np.
     steps = np.asarray(steps, dtype=np.float64)
     returns = np.asarray(returns, dtype=np.float64)
     index = np.clip(np.searchsorted(edges[1:], steps, side="left"), 0, bins - 1)
-    return (np.bincount(index, weights=returns, minlength=bins).astype(np.float64),
+    return (np.bincount(index, weights=returns, minlength=bins),
             np.bincount(index, minlength=bins))
 
 
@@ -488,18 +488,20 @@ def bin_curve(steps: Sequence[int] | np.ndarray, returns: Sequence[float] | np.n
     return np.linspace(0.0, float(total_steps), bins + 1)[1:], curve_values(sums, counts)
 
 
-def _run_curve(run: Run, total: int) -> np.ndarray | None:
-    """A run's binned curve on the grid `(0, total]`: from its `result.json` when the sweep kept
-    it there on this grid, else from its TensorBoard log; None when it logged no episode."""
+def _run_curve(run: Run, total: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """A run's binned curve `(x, values)` on the grid `(0, total]`: from its `result.json` when
+    the sweep kept it there on this grid, else from its TensorBoard log (a manifest without
+    steps: the grid ends at its last episode); None when it logged no episode."""
     kept = run.result.get("curve")
     if kept and kept.get("bins") == CURVE_BINS and kept.get("total_steps") == total:
         if not any(kept["counts"]):
             return None
-        return curve_values(kept["sums"], kept["counts"])
+        x = np.linspace(0.0, float(total), CURVE_BINS + 1)[1:]
+        return x, curve_values(kept["sums"], kept["counts"])
     steps, returns = read_episodic_returns(_curve_folder(run))
     if steps.size == 0:
         return None
-    return bin_curve(steps, returns, total or max(int(steps.max()), 1))[1]
+    return bin_curve(steps, returns, total or max(int(steps.max()), 1))
 
 
 # -- writing -------------------------------------------------------------------------------------
@@ -849,12 +851,12 @@ def _curves(w: _Writer, runs: list[Run]) -> list[str]:
             total = max(r.steps for r in group)
             binned = []
             for run in group:
-                values = _run_curve(run, total)
-                if values is None:
+                curve = _run_curve(run, total)
+                if curve is None:
                     no_log.append(run.describe())
                     continue
+                x, values = curve
                 binned.append(values)
-            x = np.linspace(0.0, float(total or 1), CURVE_BINS + 1)[1:]
             if binned:
                 values = np.vstack(binned)
                 count = np.sum(np.isfinite(values), axis=0)
