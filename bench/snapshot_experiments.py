@@ -6,10 +6,11 @@ copy it and run the same command with `--out` the copy to continue the sweep whe
     python bench/snapshot_experiments.py SWEEP bench/results/experiments/cpu \\
         --command "routine-gym experiment run NAME --budget cpu --out SWEEP --jobs 2"
 
-Writes DEST/report/ (the figures, CSVs and report.md of `routine-gym experiment report SWEEP`,
-which is run first), DEST/{experiment}.json, DEST/runs/KEY/{config,result}.json (and
-demo.npz) and DEST/provenance.json (machine, date, commit, command, runs finished per
-experiment, and one line per snapshot so far: what ran when).
+Writes DEST/{experiment}.json, DEST/runs/KEY/{config,result}.json (and
+demo.npz), DEST/report/ (the figures, CSVs and report.md of `routine-gym experiment report
+DEST`, drawn from the copy, so the report names DEST and shows only what was committed) and
+DEST/provenance.json (machine, date, commit, command, runs finished per experiment, and one
+line per snapshot so far: what ran when).
 """
 
 from __future__ import annotations
@@ -49,10 +50,7 @@ def main() -> None:
         sys.exit(f"{dest} holds {len(lost)} finished run(s) that {args.sweep} lacks (first: "
                  f"{lost[0]}); continue the sweep from the snapshot (cp -r {dest} SWEEP) "
                  "before snapshotting it")
-    write_report(args.sweep)
-    if (dest / "report").exists():
-        shutil.rmtree(dest / "report")
-    shutil.copytree(args.sweep / "report", dest / "report")
+    dest.mkdir(parents=True, exist_ok=True)
     finished: dict[str, dict[str, int]] = {}
     listed: set[str] = set()
     for name in EXPERIMENTS:
@@ -77,6 +75,12 @@ def main() -> None:
     for folder in dest.glob("runs/*"):
         if folder.name not in listed:
             shutil.rmtree(folder)
+    # The random policy's scores are measured once per game and cached; reuse the sweep's.
+    cached = args.sweep / "report" / "reference_scores.json"
+    if cached.exists() and not (dest / "report" / "reference_scores.json").exists():
+        (dest / "report").mkdir(parents=True, exist_ok=True)
+        shutil.copy2(cached, dest / "report" / "reference_scores.json")
+    write_report(dest)
     commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True,
                             text=True).stdout.strip()
     date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())

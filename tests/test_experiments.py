@@ -252,6 +252,9 @@ def test_a_snapshot_keeps_results_not_checkpoints_and_continues_as_a_sweep(local
     assert "ablation     8/8 runs finished" in proc.stdout
     kept = {p.relative_to(dest).parts[2] for p in dest.glob("runs/*/*")}
     assert kept == {"config.json", "result.json", "demo.npz"}  # no logs, no checkpoints
+    # The report is drawn from the copy: it names the snapshot, not the sweep folder.
+    assert (dest / "report" / "report.md").read_text().startswith(
+        f"# routine-gym report: `{dest}`\n")
     assert {p.parent.name for p in dest.glob("runs/*/result.json")} == set(_results(out))
     provenance = json.loads((dest / "provenance.json").read_text())
     assert provenance["experiments"]["rl"] == {"runs": 2, "finished": 2}

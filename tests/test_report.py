@@ -413,3 +413,13 @@ def test_performance_profiles_count_the_runs_above_each_threshold():
     profile, lo, hi = profiles["A"]
     assert profile.tolist() == [1.0, 0.5, 0.0]
     assert np.all(lo <= profile + 1e-12) and np.all(profile <= hi + 1e-12)
+
+
+def test_each_method_and_ablation_variant_has_its_own_colour():
+    # Fig. 6 is read beside Figs. 2-5: a variant drawn in a baseline's colour reads as that
+    # baseline. Only Full is RAPL-A2C itself and shares its colour.
+    variants = {v: c for v, c in report.ABLATION_COLOURS.items() if v != "Full"}
+    assert set(report.ABLATION_COLOURS) == set(report.ABLATION_VARIANTS)
+    assert report.ABLATION_COLOURS["Full"] == report.COLOURS["RAPL-A2C"]
+    colours = list(report.COLOURS.values()) + list(variants.values())
+    assert len({c.lower() for c in colours}) == len(colours)

@@ -96,10 +96,11 @@ COLOURS = {
     "RAPL-SQIL": "#ff7f0e",
 }
 #: The discovery ablations of Fig. 6 in the paper's order, and one colour each (Full is the
-#: full RAPL-A2C, in its colour).
+#: full RAPL-A2C, in its colour; the others are colours no method has, so a variant is never
+#: read as a baseline; ID, the same discovery on a weaker demo, is a light shade of Full's).
 ABLATION_VARIANTS = ("Full", "RR", "PbE", "RF", "ID", "RP")
-ABLATION_COLOURS = {"Full": COLOURS["RAPL-A2C"], "RR": "#bcbd22", "PbE": "#1f77b4",
-                    "RF": "#9467bd", "ID": "#8c564b", "RP": "#e377c2"}
+ABLATION_COLOURS = {"Full": COLOURS["RAPL-A2C"], "RR": "#bcbd22", "PbE": "#393b79",
+                    "RF": "#8c6d31", "ID": "#ff9896", "RP": "#7b4173"}
 _OTHER_COLOUR = "#333333"
 
 #: The paper's Table 1 (Atari): method → (alignment, human-normalised score).
