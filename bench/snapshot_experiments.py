@@ -75,11 +75,14 @@ def main() -> None:
     for folder in dest.glob("runs/*"):
         if folder.name not in listed:
             shutil.rmtree(folder)
-    # The random policy's scores are measured once per game and cached; reuse the sweep's.
+    # The report is drawn afresh, so none of an earlier snapshot's figures is left over; the
+    # random policy's scores are measured once per game and cached, so reuse the sweep's.
+    if (dest / "report").exists():
+        shutil.rmtree(dest / "report")
     cached = args.sweep / "report" / "reference_scores.json"
-    if cached.exists() and not (dest / "report" / "reference_scores.json").exists():
-        (dest / "report").mkdir(parents=True, exist_ok=True)
-        shutil.copy2(cached, dest / "report" / "reference_scores.json")
+    if cached.exists():
+        (dest / "report").mkdir()
+        shutil.copy2(cached, dest / "report" / cached.name)
     write_report(dest)
     commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True,
                             text=True).stdout.strip()
