@@ -1,59 +1,114 @@
 """Atomic file writes: a crash, a kill or a full disk never leaves half a file behind.
 
-A file is written to a temporary file beside it, `.{name}.tmp` (the same name each time, so
-the remains of a killed write are reused by the next one, never piling up), flushed to disk,
-then renamed over the target in one step. Only regular files are replaced: a folder, a device
-(`/dev/null`), a pipe or a link to one is refused. `check_writable` tells, before any work,
-whether a path could be written at all (a missing folder, a read-only place), so that nobody
-plays or trains for an output that cannot be saved.
+A file is written to a temporary file beside it, `.{name}.{pid}-{random}.tmp`, flushed to disk,
+then renamed over the target in one step. The temporary name is unique to the writer, so any
+number of processes (or threads) may write the same target at once: each rename replaces the
+target with one complete file, and a reader only ever sees a whole file, the old one or one of
+the new ones, never a partial or an empty one. The remains a killed writer leaves (a
+`SIGKILL` gives it no time to clean up) are removed by the next write of the same target once
+their process is gone, so they never pile up. Only regular files are replaced: a folder, a
+device (`/dev/null`), a pipe or a link to one is refused. `check_writable` tells, before any
+work, whether a path could be written at all (a missing folder, a read-only place, a folder
+that is a file), so that nobody plays or trains for an output that cannot be saved.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
+import re
+import secrets
 import stat
 
 from routine_gym.errors import UsageError
 
 __all__ = ["atomic_write_bytes", "atomic_write_text", "check_writable", "temporary_path"]
 
+_TEMPORARY = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)-[0-9a-f]{12}\.tmp$")
+
 
 def temporary_path(path: str | os.PathLike) -> str:
-    """Where `atomic_write_bytes` stages `path`: `.{name}.tmp` in the same folder."""
+    """A fresh temporary name for `path`: `.{name}.{pid}-{random}.tmp` in the same folder."""
     path = os.path.abspath(os.fspath(path))
-    return os.path.join(os.path.dirname(path), f".{os.path.basename(path)}.tmp")
+    name = f".{os.path.basename(path)}.{os.getpid()}-{secrets.token_hex(6)}.tmp"
+    return os.path.join(os.path.dirname(path), name)
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
+def _remove_stale_temporaries(path: str) -> None:
+    """Delete the temporary files of `path` whose writer no longer runs (a killed write)."""
+    folder, base = os.path.split(path)
+    with contextlib.suppress(OSError):
+        for entry in os.scandir(folder):
+            match = _TEMPORARY.match(entry.name)
+            if match and match["name"] == base and not _pid_alive(int(match["pid"])):
+                with contextlib.suppress(OSError):
+                    os.unlink(entry.path)
 
 
 def _refuse_irregular(path: str, what: str) -> None:
     try:
         mode = os.stat(path).st_mode
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError):
         return
     if not stat.S_ISREG(mode):
         kind = "a folder" if stat.S_ISDIR(mode) else "not a regular file"
         raise UsageError(f"{what}{path} is {kind}; routine-gym only writes regular files")
 
 
-def check_writable(path: str | os.PathLike, flag: str = "") -> None:
+def _first_file_above(folder: str) -> str | None:
+    """The nearest existing ancestor of `folder` that is not a folder, if any."""
+    here = folder
+    while True:
+        if os.path.lexists(here):
+            return None if os.path.isdir(here) else here
+        parent = os.path.dirname(here)
+        if parent == here:
+            return None
+        here = parent
+
+
+def check_writable(path: str | os.PathLike, flag: str = "", make_folder: bool = False) -> None:
     """Refuse, before any work, a path that cannot be written as a regular file.
 
     Args:
         path: the output file.
         flag: the option that named it, for the message (`"--out"`).
+        make_folder: create the file's missing folders (as the writers do) instead of
+            refusing them.
 
     Raises:
-        UsageError: the path is a folder or not a regular file, its folder does not exist, or
-            nothing can be created there (read-only, no permission).
+        UsageError: the path is a folder or not a regular file, a folder on its way is a file,
+            its folder does not exist (unless `make_folder`), or nothing can be created there
+            (read-only, no permission).
     """
     path = os.fspath(path)
     what = f"{flag} " if flag else ""
-    _refuse_irregular(path, what)
     folder = os.path.dirname(os.path.abspath(path))
+    blocker = _first_file_above(folder)
+    if blocker is not None:
+        raise UsageError(f"{what}{path}: {blocker} is a file, not a folder")
+    _refuse_irregular(path, what)
     if not os.path.isdir(folder):
-        raise UsageError(f"{what}{path}: its folder {folder} does not exist")
+        if not make_folder:
+            raise UsageError(f"{what}{path}: its folder {folder} does not exist")
+        try:
+            os.makedirs(folder, exist_ok=True)
+        except OSError as exc:
+            raise UsageError(f"{what}{path}: cannot create its folder {folder} "
+                             f"({exc.strerror})") from None
     probe = temporary_path(path)
     try:
-        with open(probe, "wb"):
+        with open(probe, "xb"):
             pass
         os.unlink(probe)
     except OSError as exc:
@@ -66,28 +121,32 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
-    """Write `data` to `path` through a temporary file in the same folder and a rename.
+    """Write `data` to `path` through a temporary file of its own and a rename.
 
     The folder is made when missing. The file gets the permissions `open()` would give it.
 
     Raises:
-        UsageError: `path` exists and is not a regular file (a folder, a device, a pipe).
+        UsageError: `path` exists and is not a regular file (a folder, a device, a pipe), or a
+            folder on its way is a file.
     """
-    path = os.fspath(path)
+    path = os.path.abspath(os.fspath(path))
+    folder = os.path.dirname(path)
+    blocker = _first_file_above(folder)
+    if blocker is not None:
+        raise UsageError(f"{path}: {blocker} is a file, not a folder")
     _refuse_irregular(path, "")
-    folder = os.path.dirname(os.path.abspath(path))
     os.makedirs(folder, exist_ok=True)
+    _remove_stale_temporaries(path)
     tmp = temporary_path(path)
     try:
-        umask = os.umask(0)
-        os.umask(umask)
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666 & ~umask)
+        # open() applies the umask itself; os.umask would change it for every thread.
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException:
-        if os.path.exists(tmp):
+        with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise

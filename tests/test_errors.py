@@ -262,14 +262,22 @@ def test_an_output_that_cannot_be_written_is_refused_before_recording(out, messa
     assert stat.S_ISCHR(os.stat("/dev/null").st_mode)  # still the device
 
 
-def test_the_atomic_writer_refuses_to_replace_a_device_and_reuses_its_temporary_name(tmp_path):
+def test_the_atomic_writer_refuses_to_replace_a_device_and_clears_a_killed_writers_remains(
+        tmp_path):
     with pytest.raises(UsageError, match="not a regular file"):
         atomic_write_bytes("/dev/null", b"x")
     target = tmp_path / "file.bin"
-    Path(temporary_path(target)).write_bytes(b"remains of a killed write")
+    # The remains of a write whose process was killed: a pid that no longer runs.
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    remains = tmp_path / f".file.bin.{dead.pid}-0123456789ab.tmp"
+    remains.write_bytes(b"remains of a killed write")
+    # A live writer's temporary file (this process's) is left alone.
+    live = Path(temporary_path(target))
+    live.write_bytes(b"being written")
     atomic_write_bytes(target, b"new")
     assert target.read_bytes() == b"new"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["file.bin"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["file.bin", live.name])
 
 
 def test_a_killed_record_leaves_neither_output_nor_temporary_file(tmp_path):
