@@ -265,7 +265,7 @@ def learn_options(args: Args, demo, obs_space: gym.spaces.Box, num_actions: int,
 
 def main(args: Args) -> dict | None:
     run = start_run(args, "compile_a2c.py", CHECKPOINT_KEYS, lower_budget=True,
-                    extra_checks=extra_checks(args))
+                    extra_checks=extra_checks)
     args, device, writer = run.args, run.device, run.writer
 
     def thunk(i: int):

@@ -149,12 +149,12 @@ CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "rng", "arg
 
 
 def main(args: Args) -> dict | None:
-    run = start_run(args, "option_critic.py", CHECKPOINT_KEYS, lower_budget=True, extra_checks=[
-        ("num_options", args.num_options >= 1, "≥ 1"),
-        ("option_epsilon", 0 <= args.option_epsilon <= 1, "in [0, 1]"),
-        ("deliberation_cost", np.isfinite(args.deliberation_cost), "a finite number"),
-        ("term_coef", args.term_coef >= 0, "≥ 0"),
-    ])
+    run = start_run(args, "option_critic.py", CHECKPOINT_KEYS, lower_budget=True,
+                    extra_checks=lambda a: [
+                        ("num_options", a.num_options >= 1, "≥ 1"),
+                        ("option_epsilon", 0 <= a.option_epsilon <= 1, "in [0, 1]"),
+                        ("term_coef", a.term_coef >= 0, "≥ 0"),
+                    ])
     args, device, rng, writer = run.args, run.device, run.rng, run.writer
 
     # Env setup: same-step autoreset, so the step that ends an episode returns the reset obs.

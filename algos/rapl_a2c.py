@@ -131,6 +131,8 @@ class Args:
     min_routine_length: int = 2
     """ignore routine candidates shorter than this (the scalability experiment's longer
     routines; the ablations copy the lengths the full model then finds)"""
+    max_routine_length: int = 64
+    """ignore routine candidates longer than this (the wrapper pads every step to the longest)"""
 
     # Procgen
     num_levels: int = 100
@@ -193,7 +195,10 @@ CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "rng", "arg
 def main(args: Args) -> None:
     # An explicit --total-timesteps on --resume sets a new budget: higher to train on, or at
     # most the steps done to go straight to evaluation and demo recording.
-    run = start_run(args, "rapl_a2c.py", CHECKPOINT_KEYS, lower_budget=True)
+    run = start_run(args, "rapl_a2c.py", CHECKPOINT_KEYS, lower_budget=True,
+                    extra_checks=lambda a: [("min_routine_length",
+                                             a.min_routine_length <= a.max_routine_length,
+                                             f"≤ --max-routine-length ({a.max_routine_length})")])
     args, device, writer = run.args, run.device, run.writer
     for levels in args.extra_evals:
         level_env_kwargs(args, levels)  # refused now, not after training
@@ -209,6 +214,7 @@ def main(args: Args) -> None:
             args.env_id, args.num_routines, demo=demo, library_path=args.routine_library,
             proposer=args.proposer, length_weight=args.length_weight, alpha=args.alpha,
             seed=args.seed, min_length=args.min_routine_length, source={"path": args.demo},
+            max_length=args.max_routine_length,
             env_kwargs=train_env_kwargs(args), required=f"--mode {args.mode}",
         )
     if library is not None:

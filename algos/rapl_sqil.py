@@ -112,6 +112,8 @@ class Args:
     """Levenshtein distance under which similar routines are pruned"""
     proposer: Literal["full", "random", "enumerate", "random-fetch", "repeat"] = "full"
     """full: Sequitur (the paper's model); the others are the discovery ablations"""
+    max_routine_length: int = 64
+    """ignore routine candidates longer than this (the wrapper pads every step to the longest)"""
 
     # Running it
     eval_episodes: int = 100
@@ -150,8 +152,8 @@ CHECKPOINT_KEYS = ("model", "target", "optimizer", "global_step", "updates", "rn
 
 
 def main(args: Args) -> dict | None:
-    run = start_run(args, "rapl_sqil.py", CHECKPOINT_KEYS, extra_checks=[
-        ("batch_size", args.batch_size >= 2, "≥ 2 (half demo, half agent)")])
+    run = start_run(args, "rapl_sqil.py", CHECKPOINT_KEYS, extra_checks=lambda a: [
+        ("batch_size", a.batch_size >= 2, "≥ 2 (half demo, half agent)")])
     args, device, rng, writer = run.args, run.device, run.rng, run.writer
 
     # The demo, its routines, and the demo buffer D_prim ∪ D_routine in the agent's view.
@@ -163,7 +165,7 @@ def main(args: Args) -> dict | None:
         library = load_routines(
             args.env_id, args.num_routines, demo=demo, library_path=args.routine_library,
             proposer=args.proposer, length_weight=args.length_weight, alpha=args.alpha,
-            seed=args.seed, source={"path": args.demo},
+            seed=args.seed, source={"path": args.demo}, max_length=args.max_routine_length,
         )
     if library is not None:
         print(library.describe(demo.action_meanings))

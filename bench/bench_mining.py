@@ -27,10 +27,18 @@ Inputs (`--inputs`):
 - ``demo``: the actions of `demos/MiniQbert-v0.npz` repeated, each action replaced by a random
   one with probability 0.1: a real play pattern with noise.
 
+`--repetitive` runs another case instead (issue 24, "small inputs, unbounded cost"): `mine` on
+N copies of one action (the grammar's rules expand to 2, 4, ..., 2^19 actions, every one
+occurring at nearly every position) against `mine` on N uniformly random actions over 6, in
+the same run, round by round, each with the default bound on routine length
+(`MAX_ROUTINE_LENGTH`) and without one (`max_length=None`). Before the fix, 10^6 copies of
+one action did not finish in 2 minutes.
+
 Usage:
     python bench/bench_mining.py
     python bench/bench_mining.py --sizes 10000 100000 1000000 --repeats 3 \\
         --out bench/results/mining.md
+    python bench/bench_mining.py --repetitive --sizes 1000000 --repeats 3
 """
 
 from __future__ import annotations
@@ -58,7 +66,7 @@ import routine_gym
 from routine_gym.atomic import atomic_write_text
 from routine_gym.demo import Demo
 from routine_gym.library import RoutineLibrary
-from routine_gym.mining import SequiturMiner
+from routine_gym.mining import MAX_ROUTINE_LENGTH, SequiturMiner
 from routine_gym.sequitur import induce
 
 REPO = Path(__file__).resolve().parents[1]
@@ -307,6 +315,77 @@ def render(rows: list[dict[str, Any]], info: dict[str, str], command: str,
     return "\n".join(lines) + "\n"
 
 
+def repetitive_rows(sizes: list[int], repeats: int) -> list[dict[str, Any]]:
+    """Best-of-`repeats` `mine` times on one repeated action and on random actions."""
+    rows = []
+    for size in sizes:
+        inputs = {
+            "one action": np.zeros(size, dtype=np.int64).tolist(),
+            "random": np.random.default_rng(0).integers(0, 6, size=size).tolist(),
+        }
+        bounds = {"bounded": MAX_ROUTINE_LENGTH, "unbounded": None}
+        best = {(i, b): float("inf") for i in inputs for b in bounds}
+        routines = {}
+        load_before = load_average()
+        for _ in range(repeats):
+            for (kind, bound), _best in best.items():
+                miner = SequiturMiner(max_length=bounds[bound])
+                seconds, library = timed(lambda m=miner, a=inputs[kind]: _quiet_mine(m, a))
+                best[kind, bound] = min(best[kind, bound], seconds)
+                routines[kind, bound] = library.routines
+                del library
+        for kind in inputs:
+            rows.append({
+                "kind": kind, "size": size,
+                **{bound: best[kind, bound] for bound in bounds},
+                "same": routines[kind, "bounded"] == routines[kind, "unbounded"],
+                "routines": routines[kind, "bounded"],
+                "load": f"{load_before} → {load_average()}",
+            })
+        for bound in bounds:
+            rows[-2][f"{bound}_ratio"] = best["one action", bound] / best["random", bound]
+    return rows
+
+
+def _quiet_mine(miner: SequiturMiner, actions: list[int]) -> RoutineLibrary:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return miner.mine(actions)
+
+
+def render_repetitive(rows: list[dict[str, Any]], info: dict[str, str], command: str,
+                      repeats: int) -> str:
+    """The repetitive case as a markdown page."""
+    lines = [
+        "# Mining benchmark: one repeated action against random actions",
+        "",
+        "Produced by `bench/bench_mining.py --repetitive`; the command, machine and load are "
+        "below.",
+        "",
+        f"Command: `{command}`",
+        "",
+        *[f"- {k}: {v}" for k, v in info.items()],
+        "",
+        f"`SequiturMiner().mine` (K = 3), best of {repeats} runs in seconds, on the same Python "
+        "list of ints, with `gc.collect()` before each run: with the default bound on routine "
+        f"length ({MAX_ROUTINE_LENGTH}) and without one. Ratio: one action / random, same "
+        "bound.",
+        "",
+        f"| input | actions | mine, max_length {MAX_ROUTINE_LENGTH} | mine, max_length None "
+        "| ratio (bounded) | ratio (unbounded) | same library | routines | load (1/5/15 min) |",
+        "|---|---:|---:|---:|---:|---:|:---:|---|---|",
+    ]
+    yes = {True: "yes", False: "NO"}
+    for r in rows:
+        ratios = [f"{r[k]:.2f}" if k in r else "" for k in ("bounded_ratio", "unbounded_ratio")]
+        routines = " · ".join(" ".join(map(str, ro)) for ro in r["routines"])
+        lines.append(
+            f"| {r['kind']} | {r['size']:,} | {r['bounded']:.3f} | {r['unbounded']:.3f} "
+            f"| {ratios[0]} | {ratios[1]} | {yes[r['same']]} | {routines} | {r['load']} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: list[str] | None = None) -> None:
     """Parse the flags, run every (input, size), print and write the markdown tables."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -318,8 +397,11 @@ def main(argv: list[str] | None = None) -> None:
                         help="runs per measurement (the best is kept)")
     parser.add_argument("--slow-repeats", type=int, default=1,
                         help="runs of the pure-Python grammars above 100k actions")
-    parser.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "mining.md",
-                        help="markdown file to write")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="markdown file to write (default bench/results/mining.md, with "
+                        "--repetitive bench/results/mining_repetitive.md)")
+    parser.add_argument("--repetitive", action="store_true",
+                        help="time mine on N copies of one action against N random actions")
     parser.add_argument("--child", nargs=2, metavar=("KIND", "SIZE"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:
@@ -333,6 +415,15 @@ def main(argv: list[str] | None = None) -> None:
     info = machine_info()
     info["load average at start"] = load_average()
     print(f"# {command}\n# load average at start: {info['load average at start']}", flush=True)
+    if args.repetitive:
+        rows = repetitive_rows(args.sizes, args.repeats)
+        info["load average at end"] = load_average()
+        text = render_repetitive(rows, info, command, args.repeats)
+        out = args.out or REPO / "bench" / "results" / "mining_repetitive.md"
+        print(text)
+        atomic_write_text(out, text)
+        print(f"written to {out}")
+        return
     rows = []
     for kind in args.inputs:
         for size in args.sizes:
@@ -345,9 +436,10 @@ def main(argv: list[str] | None = None) -> None:
                   f"{row['grammar_py']:.3f} s; load {row['load']}", flush=True)
     info["load average at end"] = load_average()
     text = render(rows, info, command, args.repeats, args.slow_repeats)
+    out = args.out or REPO / "bench" / "results" / "mining.md"
     print(text)
-    atomic_write_text(args.out, text)
-    print(f"written to {args.out}")
+    atomic_write_text(out, text)
+    print(f"written to {out}")
 
 
 if __name__ == "__main__":

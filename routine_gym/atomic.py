@@ -77,19 +77,20 @@ def _first_file_above(folder: str) -> str | None:
         here = parent
 
 
-def check_writable(path: str | os.PathLike, flag: str = "", make_folder: bool = False) -> None:
+def check_writable(path: str | os.PathLike, flag: str = "") -> None:
     """Refuse, before any work, a path that cannot be written as a regular file.
+
+    The rule of every routine-gym output: missing folders are made when the file is written
+    (as `mkdir -p` would), so they are fine here as long as they can be made; nothing is
+    created by the check itself.
 
     Args:
         path: the output file.
         flag: the option that named it, for the message (`"--out"`).
-        make_folder: create the file's missing folders (as the writers do) instead of
-            refusing them.
 
     Raises:
         UsageError: the path is a folder or not a regular file, a folder on its way is a file,
-            its folder does not exist (unless `make_folder`), or nothing can be created there
-            (read-only, no permission).
+            or nothing can be created there (read-only, no permission).
     """
     path = os.fspath(path)
     what = f"{flag} " if flag else ""
@@ -98,15 +99,10 @@ def check_writable(path: str | os.PathLike, flag: str = "", make_folder: bool = 
     if blocker is not None:
         raise UsageError(f"{what}{path}: {blocker} is a file, not a folder")
     _refuse_irregular(path, what)
-    if not os.path.isdir(folder):
-        if not make_folder:
-            raise UsageError(f"{what}{path}: its folder {folder} does not exist")
-        try:
-            os.makedirs(folder, exist_ok=True)
-        except OSError as exc:
-            raise UsageError(f"{what}{path}: cannot create its folder {folder} "
-                             f"({exc.strerror})") from None
-    probe = temporary_path(path)
+    existing = folder
+    while not os.path.isdir(existing):  # the folder the missing ones would be made in
+        existing = os.path.dirname(existing)
+    probe = temporary_path(os.path.join(existing, os.path.basename(path)))
     try:
         with open(probe, "xb"):
             pass

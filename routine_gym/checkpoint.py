@@ -77,6 +77,21 @@ def load_checkpoint(resume: str | os.PathLike, keys: Iterable[str],
     return path, checkpoint
 
 
+def _same_kind(value: Any, default: Any) -> bool:
+    """Whether a saved setting has the kind of its field's default (a JSON file may hold
+    anything): a bool for a bool, a number for a float, an int for an int, a string for a
+    string; fields without a plain default (None, tuples) take any JSON value but an object."""
+    if isinstance(default, bool):
+        return isinstance(value, bool)
+    if isinstance(default, int):
+        return isinstance(value, int) and not isinstance(value, bool)
+    if isinstance(default, float):
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    if isinstance(default, str):
+        return isinstance(value, str)
+    return not isinstance(value, dict)
+
+
 #: Settings a resumed run may change: its budget, how it is run and reported.
 RESUMABLE_CHANGES = frozenset({
     "resume", "run_dir", "checkpoint_every", "log_every", "torch_threads", "save_model",
@@ -113,6 +128,11 @@ def resume_settings(args: Any, keys: Iterable[str], script: str, *,
     if unknown:
         raise UsageError(f"--resume {path}: its saved settings have fields {script} does not "
                          f"know ({', '.join(unknown)}): a checkpoint of another version?")
+    for f in fields(args):
+        if f.name in saved_fields and not _same_kind(saved_fields[f.name], f.default):
+            raise UsageError(f"--resume {path}: its saved setting {f.name} is "
+                             f"{saved_fields[f.name]!r}, not a value of the kind "
+                             f"{type(f.default).__name__}")
     saved = type(args)(**saved_fields)
     defaults = {f.name: f.default for f in fields(args)}
     def is_given(name: str) -> bool:

@@ -34,7 +34,8 @@ class RoutineLibrary:
         scores: the score of each routine (`f + λ·len` for the Sequitur miner).
         frequencies: overlapping occurrences of each routine in the demonstration.
         occurrences: for each routine, its occurrences as `(episode, start)` pairs, where
-            `start` indexes the episode's action sequence.
+            `start` indexes the episode's action sequence (given as pairs or as an integer
+            array of shape (f, 2), the miners' fast path: a routine can occur 10^6 times).
         params: the parameters of the proposer that made the library.
         source: where the actions came from (demo path, env id, seed, ...).
         action_meanings: names of the primitive actions, when known.
@@ -65,9 +66,7 @@ class RoutineLibrary:
         object.__setattr__(self, "scores", tuple(float(s) for s in self.scores))
         object.__setattr__(self, "frequencies", tuple(int(f) for f in self.frequencies))
         object.__setattr__(
-            self,
-            "occurrences",
-            tuple(tuple((int(e), int(s)) for e, s in occ) for occ in self.occurrences),
+            self, "occurrences", tuple(_occurrence_pairs(occ) for occ in self.occurrences)
         )
         if self.action_meanings is not None:
             object.__setattr__(self, "action_meanings", tuple(self.action_meanings))
@@ -194,6 +193,14 @@ def _action_id(action: Any, routine: int) -> int:
     if isinstance(action, float | np.floating) and float(action).is_integer():
         return int(action)
     raise ValueError(f"routine {routine} has a non-integer action {action!r}")
+
+
+def _occurrence_pairs(occ: Any) -> tuple[tuple[int, int], ...]:
+    """One routine's occurrences as a tuple of `(int, int)` pairs."""
+    if isinstance(occ, np.ndarray) and occ.ndim == 2 and occ.shape[1] == 2 and (
+            np.issubdtype(occ.dtype, np.integer)):
+        return tuple(zip(occ[:, 0].tolist(), occ[:, 1].tolist(), strict=True))
+    return tuple((int(e), int(s)) for e, s in occ)
 
 
 def routine_name(routine: Sequence[int], action_meanings: Sequence[str] | None = None) -> str:

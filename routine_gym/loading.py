@@ -20,7 +20,7 @@ from routine_gym.envs import same_env
 from routine_gym.envs.factory import make_primitive_env
 from routine_gym.errors import UsageError
 from routine_gym.library import RoutineLibrary
-from routine_gym.mining import make_proposer
+from routine_gym.mining import MAX_ROUTINE_LENGTH, make_proposer
 
 __all__ = ["check_demo_env", "load_demo", "load_routines"]
 
@@ -117,6 +117,7 @@ def load_routines(
     alpha: int = 2,
     seed: int = 0,
     min_length: int = 2,
+    max_length: int | None = MAX_ROUTINE_LENGTH,
     source: dict[str, Any] | None = None,
     env_kwargs: dict[str, Any] | None = None,
     required: str | None = None,
@@ -131,8 +132,9 @@ def load_routines(
         num_routines: K.
         demo: the demo to mine (not needed with `library_path`).
         library_path: a saved `RoutineLibrary` JSON to take the best K of, instead of mining.
-        proposer, length_weight, alpha, seed, min_length: the miner
-            (`routine_gym.mining.make_proposer`).
+        proposer, length_weight, alpha, seed, min_length, max_length: the miner
+            (`routine_gym.mining.make_proposer`); the scripts' `--min-routine-length` and
+            `--max-routine-length`.
         source: provenance the mined library records (the demo's path).
         env_kwargs: `gym.make` keyword arguments of the env a saved library is checked against.
         required: when set (`"--mode rapl"`), finding no routine is an error naming it.
@@ -141,6 +143,7 @@ def load_routines(
         UsageError: `num_routines` is negative, or the saved library was mined on another env
             or holds actions the env does not have.
         UsageError: `required` and no routine was found.
+        UsageError: a bad miner setting (`min_length` above `max_length`), naming the flag.
     """
     if num_routines < 0:
         raise UsageError(f"--num-routines needs to be ≥ 0, actual value: {num_routines}")
@@ -192,9 +195,10 @@ def load_routines(
             raise ValueError("load_routines needs a demo to mine or a library_path")
         try:
             miner = make_proposer(proposer, num_routines, length_weight, alpha, seed=seed,
-                                  min_length=min_length)
+                                  min_length=min_length, max_length=max_length)
         except ValueError as err:
-            raise UsageError(str(err).replace("min_length", "--min-routine-length")) from None
+            message = str(err).replace("min_length", "--min-routine-length")
+            raise UsageError(message.replace("max_length", "--max-routine-length")) from None
         with warnings.catch_warnings():
             # The miner's own "only k routines survive" warning is re-issued below.
             warnings.simplefilter("ignore")

@@ -65,6 +65,7 @@ DOMAINS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "num_routines": _AT_LEAST_0,
     "alpha": _AT_LEAST_1,
     "min_routine_length": (lambda v: v >= 2, "≥ 2"),
+    "max_routine_length": (lambda v: v >= 2, "≥ 2"),
     "length_weight": _AT_LEAST_0,
     "gamma": _UNIT,
     "gae_lambda": (lambda v: 0 <= v <= 1, "in [0, 1]"),
@@ -105,13 +106,22 @@ def _flag(name: str) -> str:
     return "--" + name.replace("_", "-")
 
 
-def check_args(args: Any, extra: Iterable[tuple[str, bool, str]] = ()) -> None:
+#: Extra argument rules: a list of `(field, holds, what it needs)`, or a function of the
+#: `Args` returning one (so a run's settings restored by `--resume` are checked too).
+ExtraChecks = Iterable[tuple[str, bool, str]] | Callable[[Any], Iterable[tuple[str, bool, str]]]
+
+
+def check_args(args: Any, extra: ExtraChecks = ()) -> None:
     """Refuse any numeric flag outside its domain (`DOMAINS`), before any work starts.
+
+    A float flag that is not finite (`inf`, `nan`) is refused whatever its rule, and a rollout
+    (`--num-steps`) longer than the whole budget (`--total-timesteps`) is refused too.
 
     Args:
         args: a script's `Args`; every field named in `DOMAINS` is checked (None means unset
             and passes).
-        extra: the script's own rules, as `(field, holds, what it needs)`.
+        extra: the script's own rules, as `(field, holds, what it needs)`, or a function of
+            `args` returning them.
 
     Raises:
         UsageError: `--flag needs to be <domain>, actual value: <value>`.
@@ -136,7 +146,16 @@ def check_args(args: Any, extra: Iterable[tuple[str, bool, str]] = ()) -> None:
         bad_number = isinstance(value, float) and not math.isfinite(value)
         if bad_number or not test(value):
             raise UsageError(f"{_flag(f.name)} needs to be {needs}, actual value: {value}")
-    for name, holds, needs in extra:
+    for f in fields(args):
+        value = getattr(args, f.name)
+        if isinstance(value, float) and not math.isfinite(value):
+            raise UsageError(f"{_flag(f.name)} needs to be a finite number, actual value: "
+                             f"{value}")
+    steps, budget = getattr(args, "num_steps", None), getattr(args, "total_timesteps", None)
+    if isinstance(steps, int) and isinstance(budget, int) and steps > budget:
+        raise UsageError(f"--num-steps needs to be ≤ --total-timesteps ({budget:,}), actual "
+                         f"value: {steps:,}")
+    for name, holds, needs in (extra(args) if callable(extra) else extra):
         if not holds:
             raise UsageError(f"{_flag(name)} needs to be {needs}, "
                              f"actual value: {getattr(args, name)}")
@@ -298,7 +317,7 @@ class Run:
 
 def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
               budget: str = "total_timesteps", lower_budget: bool = False,
-              extra_checks: Iterable[tuple[str, bool, str]] = ()) -> Run:
+              extra_checks: ExtraChecks = ()) -> Run:
     """Check `args`, resume or make the run folder, open the writer, seed, pick the device.
 
     Args:
@@ -309,7 +328,8 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
         budget: the `Args` field of the run's budget (`--resume` may change it).
         lower_budget: a lower budget on `--resume` is taken as it is (to go straight to
             evaluation); by default it may only be raised.
-        extra_checks: the script's own argument rules (see `check_args`).
+        extra_checks: the script's own argument rules (see `check_args`); give a function of
+            the `Args` so that the settings a `--resume` restores are checked by them too.
     """
     check_args(args, extra_checks)
     if getattr(args, "record_demo", None):
@@ -320,6 +340,12 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
                                                  lower_budget=lower_budget, budget=budget,
                                                  given=set(_GIVEN_FLAGS) or None)
         saved_budget = json.loads(checkpoint["args"]).get(budget)
+        # The saved settings are a file's content: checked as if typed on the command line.
+        try:
+            check_args(args, extra_checks)
+        except UsageError as exc:
+            raise UsageError(f"--resume {args.resume}: its saved settings are not valid "
+                             f"({exc})") from None
         name = os.path.basename(path)
         check_env(args.env_id)
         os.makedirs(path, exist_ok=True)

@@ -85,7 +85,8 @@ class Grammar:
     def __init__(self, rules: list[tuple[Symbol | None, ...]], num_episodes: int) -> None:
         self.rules = rules
         self.num_episodes = num_episodes
-        self._expansions: list[tuple[int, ...]] | None = None
+        self._expansions: dict[int, tuple[int, ...]] = {}
+        self._lengths: list[int] | None = None
 
     def __len__(self) -> int:
         return len(self.rules)
@@ -98,40 +99,75 @@ class Grammar:
             f"R{i} -> " + " ".join(show(s) for s in body) for i, body in enumerate(self.rules)
         )
 
-    def _expand_all(self) -> list[tuple[int, ...]]:
-        """Expansion of every rule but the start rule, children before parents (memoised)."""
-        if self._expansions is None:
-            expansions: list[tuple[int, ...] | None] = [None] * len(self.rules)
-            for root in range(1, len(self.rules)):
+    def expansion_lengths(self) -> list[int]:
+        """How many actions each rule expands to (rule 0: the whole input, separators
+        excluded), computed from the rule bodies without expanding anything."""
+        if self._lengths is None:
+            lengths = [-1] * len(self.rules)
+            for root in range(len(self.rules)):
                 # Iterative post-order walk: deep grammars (`a` * 2**20) must not recurse.
                 stack = [root]
                 while stack:
                     r = stack[-1]
-                    if expansions[r] is not None:
+                    if lengths[r] >= 0:
                         stack.pop()
                         continue
                     pending = [
                         s.index
                         for s in self.rules[r]
-                        if isinstance(s, RuleRef) and expansions[s.index] is None
+                        if isinstance(s, RuleRef) and lengths[s.index] < 0
                     ]
                     if pending:
                         stack.extend(pending)
                         continue
-                    out: list[int] = []
-                    for s in self.rules[r]:
-                        if isinstance(s, RuleRef):
-                            out.extend(expansions[s.index])  # type: ignore[arg-type]
-                        else:
-                            out.append(s)  # type: ignore[arg-type]
-                    expansions[r] = tuple(out)
+                    lengths[r] = sum(
+                        lengths[s.index] if isinstance(s, RuleRef) else s is not None
+                        for s in self.rules[r]
+                    )
                     stack.pop()
-            self._expansions = expansions  # type: ignore[assignment]
-        return self._expansions  # type: ignore[return-value]
+            self._lengths = lengths
+        return self._lengths
 
-    def expansions(self) -> list[tuple[int, ...]]:
-        """The primitive expansion of every non-start rule, in rule order."""
-        return self._expand_all()[1:]
+    def _expansion(self, root: int) -> tuple[int, ...]:
+        """Expansion of non-start rule `root`, its sub-rules' memoised on the way."""
+        expansions = self._expansions
+        stack = [root]
+        while stack:
+            r = stack[-1]
+            if r in expansions:
+                stack.pop()
+                continue
+            pending = [
+                s.index
+                for s in self.rules[r]
+                if isinstance(s, RuleRef) and s.index not in expansions
+            ]
+            if pending:
+                stack.extend(pending)
+                continue
+            out: list[int] = []
+            for s in self.rules[r]:
+                if isinstance(s, RuleRef):
+                    out.extend(expansions[s.index])
+                else:
+                    out.append(s)  # type: ignore[arg-type]
+            expansions[r] = tuple(out)
+            stack.pop()
+        return expansions[root]
+
+    def expansions(self, max_length: int | None = None) -> list[tuple[int, ...]]:
+        """The primitive expansion of every non-start rule, in rule order.
+
+        With `max_length`, only the rules of at most that many actions, and only they are
+        expanded (their lengths come from `expansion_lengths`): the rules of `a` * 2**20
+        expand to 2, 4, ..., 2**19 actions, of which a miner bounded at 64 wants five.
+        """
+        if max_length is None:
+            return [self._expansion(r) for r in range(1, len(self.rules))]
+        lengths = self.expansion_lengths()
+        return [
+            self._expansion(r) for r in range(1, len(self.rules)) if lengths[r] <= max_length
+        ]
 
     def rule_uses(self) -> list[int]:
         """How many times each rule is referenced in the grammar (rule 0: 0)."""
@@ -144,13 +180,12 @@ class Grammar:
 
     def expand(self) -> list[int] | list[list[int]]:
         """The input back: one list of actions, or a list of episodes if several were given."""
-        expansions = self._expand_all()
         episodes: list[list[int]] = [[]]
         for s in self.rules[0]:
             if s is None:
                 episodes.append([])
             elif isinstance(s, RuleRef):
-                episodes[-1].extend(expansions[s.index])
+                episodes[-1].extend(self._expansion(s.index))
             else:
                 episodes[-1].append(s)
         return episodes if self.num_episodes > 1 else episodes[0]

@@ -93,9 +93,9 @@ def test_a_read_only_filesystem_is_refused_before_any_work():
         check_writable("/sys/x.npz", "--out")
 
 
-def test_check_writable_makes_a_missing_folder_only_when_asked(tmp_path):
-    with pytest.raises(UsageError, match="does not exist"):
-        check_writable(tmp_path / "new" / "x.json", "--out")
-    assert not (tmp_path / "new").exists()
-    check_writable(tmp_path / "new" / "x.json", "--out", make_folder=True)
-    assert (tmp_path / "new").is_dir() and list((tmp_path / "new").iterdir()) == []
+def test_a_missing_folder_is_fine_and_is_made_only_when_the_file_is_written(tmp_path):
+    target = tmp_path / "new" / "deeper" / "x.json"
+    check_writable(target, "--out")
+    assert not (tmp_path / "new").exists()  # the check creates nothing
+    atomic_write_bytes(target, b"{}")
+    assert target.read_bytes() == b"{}"

@@ -249,11 +249,12 @@ def test_a_lower_budget_on_resume_does_not_overwrite_the_saved_one(checkpoint, t
 
 @pytest.mark.parametrize(("out", "message"), [
     (".", "is a folder"),
-    ("no/such/folder/demo.npz", "does not exist"),
+    ("notes.txt/demo.npz", "notes.txt is a file, not a folder"),
     ("/proc/demo.npz", "cannot write there"),
     ("/dev/null", "not a regular file"),
 ])
 def test_an_output_that_cannot_be_written_is_refused_before_recording(out, message, tmp_path):
+    (tmp_path / "notes.txt").write_text("a file, where a folder of the path should be")
     start = time.monotonic()
     for command in (["record", "MiniQbert-v0", "--episodes", "50", "--out", out],
                     ["play", "MiniQbert-v0", "--out", out]):

@@ -202,7 +202,7 @@ def test_worked_example_library():
         "length_weight": 0.1,
         "alpha": 2,
         "prune_primitives": True,
-        "max_length": None,
+        "max_length": 64,
         "min_length": 2,
     }
 
@@ -433,6 +433,7 @@ def test_make_proposer_builds_each_kind():
         "prune_primitives": False,
         "seed": 7,
         "min_length": 2,
+        "max_length": 64,
     }
 
 

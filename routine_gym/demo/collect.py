@@ -14,6 +14,7 @@ import gymnasium as gym
 
 from routine_gym.demo.format import Demo
 from routine_gym.demo.recorder import DemoRecorder, _agent_stack, _as_action
+from routine_gym.envs import make_env
 
 
 def _policy_caller(policy: Callable[..., Any]) -> Callable[[Any, gym.Env], Any]:
@@ -89,7 +90,7 @@ def record_agent_demo(
         kwargs["max_episode_steps"] = max_steps
     act = _policy_caller(policy)
     recorder = DemoRecorder(
-        gym.make(env_id, **kwargs), record_observations=record_observations, source="agent"
+        make_env(env_id, **kwargs), record_observations=record_observations, source="agent"
     )
     env = _agent_stack(recorder, wrap_env, routines)
     try:
@@ -179,7 +180,7 @@ def record_human_demo(
             f"play renders rgb_array frames, got render_mode={kwargs['render_mode']!r}"
         )
     kwargs["render_mode"] = "rgb_array"
-    env = gym.make(env_id, **kwargs)
+    env = make_env(env_id, **kwargs)
     if keys_to_action is None and not env.has_wrapper_attr("get_keys_to_action"):
         env.close()
         raise ValueError(

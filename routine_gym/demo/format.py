@@ -68,6 +68,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
 import zipfile
 import zlib
@@ -80,6 +81,7 @@ import gymnasium as gym
 import numpy as np
 
 from routine_gym.atomic import atomic_write_bytes
+from routine_gym.errors import UsageError
 
 DEMO_FORMAT = "routine-gym/demo"
 DEMO_VERSION = 2
@@ -664,26 +666,79 @@ def _read_array(data: Any, name: str) -> np.ndarray:
 
 
 def _check_member_sizes(path: str) -> None:
-    """Refuse a demo whose members expand beyond the documented limits (`MAX_*`)."""
+    """Refuse a demo whose members expand beyond the documented limits (`MAX_*`), before
+    anything is allocated.
+
+    Both sizes are checked: the zip member's declared size, and the shape × item size its
+    `.npy` header claims (`np.load` allocates that much before reading a byte of data, so a
+    1.8 KB file claiming a shape of 10^12 would end in a `MemoryError`). The header must also
+    agree with the member's size and must not declare an object dtype (a pickle).
+    """
     try:
         with zipfile.ZipFile(path) as archive:
-            members = archive.infolist()
-    except (zipfile.BadZipFile, OSError) as exc:
+            for member in archive.infolist():
+                name = member.filename.removesuffix(".npy")
+                if name == "meta":
+                    limit, what = MAX_META_BYTES, f"{MAX_META_BYTES >> 20} MiB of metadata"
+                elif name in _OBS_ARRAYS:
+                    limit = MAX_OBSERVATION_BYTES
+                    what = f"{MAX_OBSERVATION_BYTES >> 30} GiB of observations"
+                else:
+                    limit, what = 8 * MAX_STEPS + 4096, f"{MAX_STEPS:,} steps"
+                if member.file_size > limit:
+                    raise ValueError(
+                        f"{path}: its {name!r} expands to {member.file_size:,} bytes, over the "
+                        f"limit of {what} a demo may hold"
+                    )
+                with archive.open(member) as stream:
+                    _check_array_header(path, name, stream, member.file_size, limit, what)
+    except (zipfile.BadZipFile, zlib.error, EOFError, OSError) as exc:
         raise ValueError(f"{path}: corrupt demo file ({type(exc).__name__}: {exc})") from exc
-    for member in members:
-        name = member.filename.removesuffix(".npy")
-        if name == "meta":
-            limit, what = MAX_META_BYTES, f"{MAX_META_BYTES >> 20} MiB of metadata"
-        elif name in _OBS_ARRAYS:
-            limit = MAX_OBSERVATION_BYTES
-            what = f"{MAX_OBSERVATION_BYTES >> 30} GiB of observations"
+
+
+class _CountingReader:
+    """A read-only stream that counts the bytes read through it (the `.npy` header's size)."""
+
+    def __init__(self, stream: Any) -> None:
+        self.stream = stream
+        self.count = 0
+
+    def read(self, size: int = -1) -> bytes:
+        data = self.stream.read(size)
+        self.count += len(data)
+        return data
+
+
+def _check_array_header(path: str, name: str, stream: Any, size: int, limit: int,
+                        what: str) -> None:
+    """Refuse a `.npy` member whose header claims more than `limit` bytes, more or fewer
+    than the `size` bytes it holds, or an object dtype; a member that is not `.npy` is left
+    to `_read_array`."""
+    npy = np.lib.format
+    stream = _CountingReader(stream)
+    if stream.read(len(npy.MAGIC_PREFIX)) != npy.MAGIC_PREFIX:
+        return
+    try:
+        version = tuple(stream.read(2))
+        if version == (1, 0):
+            shape, _, dtype = npy.read_array_header_1_0(stream)
+        elif version in ((2, 0), (3, 0)):
+            shape, _, dtype = npy.read_array_header_2_0(stream)
         else:
-            limit, what = 8 * MAX_STEPS + 4096, f"{MAX_STEPS:,} steps"
-        if member.file_size > limit:
-            raise ValueError(
-                f"{path}: its {name!r} expands to {member.file_size:,} bytes, over the limit of "
-                f"{what} a demo may hold"
-            )
+            raise ValueError(f".npy format version {version} is not supported")
+    except ValueError as exc:
+        raise UsageError(f"{path}: member {name!r} has no valid .npy header ({exc})") from None
+    header_bytes = stream.count
+    claims = f"{path}: member {name!r} claims shape {shape} of {dtype}"
+    if dtype.hasobject:
+        raise UsageError(f"{path}: member {name!r} holds pickled Python objects (it claims "
+                         f"shape {shape} of {dtype}), which routine-gym never loads")
+    nbytes = math.prod(shape) * dtype.itemsize
+    if nbytes > limit:
+        raise UsageError(f"{claims}, {nbytes:,} bytes, over the limit of {what} a demo may hold")
+    if nbytes != size - header_bytes:
+        raise UsageError(f"{claims}, {nbytes:,} bytes, but holds {size - header_bytes:,} "
+                         "bytes of data")
 
 
 def demo_file_version(path: str | os.PathLike) -> int:

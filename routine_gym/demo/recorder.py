@@ -322,8 +322,9 @@ class DecisionMarker(gym.Wrapper):
     routine the agent chose is a decision; `record_agent_demo` builds that stack.
 
     Example:
-        >>> import gymnasium as gym
+        >>> import gymnasium as gym, routine_gym
         >>> from routine_gym.envs.atari import FireReset
+        >>> routine_gym.register_envs()  # ALE's ids, for a gym.make of your own
         >>> recorder = DemoRecorder(gym.make("ALE/Breakout-v5", frameskip=4),
         ...                         record_observations=False)
         >>> env = DecisionMarker(FireReset(recorder))

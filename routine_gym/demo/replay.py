@@ -19,6 +19,7 @@ import numpy as np
 
 from routine_gym.demo.format import Demo, DemoEpisode, _check_env
 from routine_gym.demo.recorder import DemoRecorder, _agent_stack, _Episode
+from routine_gym.envs import make_env
 
 
 class DemoReplayError(ValueError):
@@ -110,7 +111,7 @@ def replay(
         kwargs = demo.env_kwargs
         if demo.meta.get("max_episode_steps") is not None:
             kwargs["max_episode_steps"] = demo.meta["max_episode_steps"]
-        env = gym.make(demo.env_id, **kwargs)
+        env = make_env(demo.env_id, **kwargs)
     else:
         _check_env(demo, env=env)
     with warnings.catch_warnings():  # the replay env may legitimately be wrapped or spec-less
@@ -229,7 +230,7 @@ def upgrade_demo(demo: Demo, wrap_env: Callable[[gym.Env], gym.Env] | None) -> D
             kwargs["max_episode_steps"] = demo.meta["max_episode_steps"]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            recorder = DemoRecorder(gym.make(demo.env_id, **kwargs), record_observations=False)
+            recorder = DemoRecorder(make_env(demo.env_id, **kwargs), record_observations=False)
         env = _agent_stack(recorder, wrap_env, None)
         recorded_under = env.wrappers_below
         try:

@@ -26,6 +26,7 @@ __all__ = [
     "canonical_env_id",
     "env_family",
     "env_spec",
+    "make_env",
     "profile_for",
     "register_envs",
     "register_own_envs",
@@ -47,6 +48,13 @@ def env_spec(env_id: str) -> EnvSpec | None:
         return gym.spec(name if sep else env_id)
     except gym.error.Error:
         return None
+
+
+def make_env(env_id: str, **kwargs):
+    """`gym.make(env_id, **kwargs)` once every env routine-gym knows is registered (ALE's
+    too): the one way routine-gym makes an env from an id a user gave."""
+    register_envs()
+    return gym.make(env_id, **kwargs)
 
 
 def canonical_env_id(env_id: str) -> str:
