@@ -27,13 +27,44 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import base_machine_info, load_average  # noqa: E402
 
 from routine_gym.atomic import atomic_write_text  # noqa: E402
-from routine_gym.experiments.report import write_report  # noqa: E402
+from routine_gym.errors import UsageError, one_line  # noqa: E402
+from routine_gym.experiments import json_kind, read_json_object  # noqa: E402
+from routine_gym.experiments.report import result_problem, write_report  # noqa: E402
 from routine_gym.experiments.specs import EXPERIMENTS  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 
 
+def finished(folder: Path, key: str) -> bool:
+    """Whether run `key` of the sweep folder `folder` finished: its `result.json` parses and has
+    the report's shape (a corrupt one is not kept: the sweep reruns that run)."""
+    path = folder / "runs" / key / "result.json"
+    if not path.is_file():
+        return False
+    try:
+        return result_problem(read_json_object(path), key) is None
+    except UsageError:
+        return False
+
+
+def manifest_keys(path: Path) -> list[str]:
+    """The run keys a manifest lists (UsageError naming it when it is not a manifest)."""
+    runs = read_json_object(path).get("runs")
+    if not isinstance(runs, list) or not all(
+            isinstance(r, dict) and isinstance(r.get("key"), str) and r["key"]
+            and "/" not in r["key"] and r["key"] not in (".", "..") for r in runs):
+        raise UsageError(f"{path}: `runs` is not a list of run entries with their keys")
+    return [r["key"] for r in runs]
+
+
 def main() -> None:
+    try:
+        snapshot()
+    except UsageError as exc:
+        sys.exit(f"snapshot_experiments.py: error: {one_line(exc)}")
+
+
+def snapshot() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sweep", type=Path, help="the sweep folder (--out of experiment run)")
     parser.add_argument("dest", type=Path, help="where the snapshot goes")
@@ -45,40 +76,57 @@ def main() -> None:
     # The sweep folder is the truth and the snapshot mirrors it; a result only the snapshot has
     # means the sweep did not start from it, and copying would throw that result away.
     lost = sorted(p.parent.name for p in dest.glob("runs/*/result.json")
-                  if not (args.sweep / "runs" / p.parent.name / "result.json").exists())
+                  if finished(dest, p.parent.name) and not finished(args.sweep, p.parent.name))
     if lost:
         sys.exit(f"{dest} holds {len(lost)} finished run(s) that {args.sweep} lacks (first: "
                  f"{lost[0]}); continue the sweep from the snapshot (cp -r {dest} SWEEP) "
                  "before snapshotting it")
-    dest.mkdir(parents=True, exist_ok=True)
-    finished: dict[str, dict[str, int]] = {}
+    manifests = {name: args.sweep / f"{name}.json" for name in EXPERIMENTS
+                 if (args.sweep / f"{name}.json").exists()}
+    if not manifests:
+        raise UsageError(f"{args.sweep}: not a sweep folder: none of "
+                         f"{', '.join(n + '.json' for n in EXPERIMENTS)} is there")
+    keys_of = {name: manifest_keys(path) for name, path in manifests.items()}
+    history = []
+    if (dest / "provenance.json").exists():
+        history = read_json_object(dest / "provenance.json").get("snapshots", [])
+        if not isinstance(history, list):
+            raise UsageError(f"{dest / 'provenance.json'}: `snapshots` is {json_kind(history)}, "
+                             "not a list")
+    try:
+        dest.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"{dest}: cannot make the folder ({exc.strerror})") from None
+    counts: dict[str, dict[str, int]] = {}
     listed: set[str] = set()
-    for name in EXPERIMENTS:
-        manifest = args.sweep / f"{name}.json"
-        if not manifest.exists():
-            continue
+    for name, manifest in manifests.items():
         shutil.copy2(manifest, dest / manifest.name)
-        keys = [r["key"] for r in json.loads(manifest.read_text())["runs"]]
+        keys = keys_of[name]
         done = 0
         for key in keys:
+            ok = finished(args.sweep, key)
             for file in ("config.json", "result.json", "demo.npz"):
                 source = args.sweep / "runs" / key / file
-                if source.exists():
+                if source.is_file() and (file != "result.json" or ok):
                     (dest / "runs" / key).mkdir(parents=True, exist_ok=True)
                     shutil.copy2(source, dest / "runs" / key / file)
-            done += (args.sweep / "runs" / key / "result.json").exists()
-        finished[name] = {"runs": len(set(keys)), "finished": done}
+            if not ok:
+                (dest / "runs" / key / "result.json").unlink(missing_ok=True)
+            done += ok
+        counts[name] = {"runs": len(set(keys)), "finished": done}
         listed.update(keys)
     for name in EXPERIMENTS:
-        if name not in finished:
+        if name not in counts:
             (dest / f"{name}.json").unlink(missing_ok=True)
     for folder in dest.glob("runs/*"):
         if folder.name not in listed:
             shutil.rmtree(folder)
     # The report is drawn afresh, so none of an earlier snapshot's figures is left over; the
     # random policy's scores are measured once per game and cached, so reuse the sweep's.
-    if (dest / "report").exists():
+    if (dest / "report").is_dir():
         shutil.rmtree(dest / "report")
+    elif (dest / "report").exists():
+        (dest / "report").unlink()
     cached = args.sweep / "report" / "reference_scores.json"
     if cached.exists():
         (dest / "report").mkdir()
@@ -87,17 +135,14 @@ def main() -> None:
     commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True,
                             text=True).stdout.strip()
     date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-    history = []
-    if (dest / "provenance.json").exists():
-        history = json.loads((dest / "provenance.json").read_text()).get("snapshots", [])
     history.append({"date": date, "commit": commit,
-                    "finished": sum(c["finished"] for c in finished.values())})
+                    "finished": sum(c["finished"] for c in counts.values())})
     provenance = {"date": date, "commit": commit, "commands": args.command,
-                  "experiments": finished, "snapshots": history,
+                  "experiments": counts, "snapshots": history,
                   "machine": {**base_machine_info(), "load_average": load_average()}}
     atomic_write_text(dest / "provenance.json", json.dumps(provenance, indent=2) + "\n")
-    for name, counts in finished.items():
-        print(f"{name:12s} {counts['finished']}/{counts['runs']} runs finished")
+    for name, count in counts.items():
+        print(f"{name:12s} {count['finished']}/{count['runs']} runs finished")
     print(f"snapshot in {dest}")
 
 

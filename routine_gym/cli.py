@@ -14,7 +14,10 @@ Run `routine-gym COMMAND --help` for the options of each command.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import math
+import os
 import sys
 import warnings
 from collections.abc import Callable, Sequence
@@ -30,6 +33,28 @@ class CLIError(Exception):
     """A user error: printed as `routine-gym: error: ...` with exit code 2, no traceback."""
 
 
+def _needs(flag: str, value: Any, holds: bool, what: str) -> None:
+    """Refuse a flag's value outside its domain, as the scripts do: `--fps needs to be ≥ 1,
+    actual value: 0`."""
+    if isinstance(value, float) and not math.isfinite(value):
+        holds, what = False, "a finite number" if holds else what
+    if not holds:
+        raise CLIError(f"{flag} needs to be {what}, actual value: {value}")
+
+
+def _not_an_input(out: str | None, flag: str, *inputs: str) -> None:
+    """Refuse an output that is one of the command's inputs (it would be overwritten)."""
+    if out is None:
+        return
+    for given in inputs:
+        same = os.path.realpath(out) == os.path.realpath(given)
+        with contextlib.suppress(OSError):
+            same = same or os.path.samefile(out, given)
+        if same:
+            raise CLIError(f"{flag} {out} is the input {given}; it would be overwritten: "
+                           "choose another file")
+
+
 def _load_demo(path: str):
     from routine_gym.demo import Demo
 
@@ -39,8 +64,17 @@ def _load_demo(path: str):
 
 
 def cmd_mine(args: argparse.Namespace) -> int:
+    from routine_gym.atomic import check_writable
     from routine_gym.mining import make_proposer
 
+    _needs("--num-routines", args.num_routines, args.num_routines >= 1, "≥ 1")
+    _needs("--length-weight", args.length_weight, args.length_weight >= 0, "≥ 0")
+    _needs("--alpha", args.alpha, args.alpha >= 1, "≥ 1")
+    _needs("--seed", args.seed, args.seed >= 0, "≥ 0")
+    _needs("--max-routine-length", args.max_routine_length, args.max_routine_length >= 2, "≥ 2")
+    if args.out:
+        _not_an_input(args.out, "--out", args.demo)
+        check_writable(args.out, "--out")
     demo = _load_demo(args.demo)
     proposer = make_proposer(
         args.proposer,
@@ -49,6 +83,7 @@ def cmd_mine(args: argparse.Namespace) -> int:
         alpha=args.alpha,
         seed=args.seed,
         prune_primitives=not args.keep_near_primitives,
+        max_length=args.max_routine_length,
     )
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -68,6 +103,7 @@ def cmd_mine(args: argparse.Namespace) -> int:
 
 
 def cmd_show(args: argparse.Namespace) -> int:
+    _needs("--head", args.head, args.head >= 0, "≥ 0")
     path = Path(args.path)
     if not path.is_file():
         raise CLIError(f"no file at {path}")
@@ -109,12 +145,14 @@ def _file_version(path: Path) -> int:
 
 
 def cmd_upgrade(args: argparse.Namespace) -> int:
+    from routine_gym.atomic import check_writable
     from routine_gym.demo import DEMO_VERSION, DemoReplayError, upgrade_demo
     from routine_gym.envs.factory import recording_stacks
 
+    out = args.out or args.demo  # in place by default: only a verified replay replaces it
+    check_writable(out, "--out")
     demo = _load_demo(args.demo)
     version = _file_version(Path(args.demo))
-    out = args.out or args.demo
     if version >= DEMO_VERSION:
         print(f"{args.demo} is already format version {version}; nothing to upgrade")
         return 0
@@ -148,6 +186,7 @@ def cmd_show_demos(args: argparse.Namespace) -> int:
     from routine_gym.demo import DEMO_SUITE, DEMOS_DIR, Demo, demo_filename
     from routine_gym.mining import SequiturMiner
 
+    _needs("--num-routines", args.num_routines, args.num_routines >= 1, "≥ 1")
     folder = Path(args.dir) if args.dir else Path(DEMOS_DIR)
     if not folder.is_dir():
         raise CLIError(f"no demo folder at {folder}")
@@ -183,6 +222,8 @@ def cmd_show_demos(args: argparse.Namespace) -> int:
 def cmd_replay(args: argparse.Namespace) -> int:
     from routine_gym.demo import DemoReplayError, replay
 
+    if args.episode is not None:
+        _needs("--episode", args.episode, args.episode >= 0, "≥ 0")
     demo = _load_demo(args.demo)
     try:
         result = replay(demo, episode=args.episode, check=True)
@@ -223,16 +264,23 @@ def _resolve_policy(spec: str, env, noise: float = 0.0, seed: int = 0) -> Callab
 
 
 def cmd_record(args: argparse.Namespace) -> int:
-    import gymnasium as gym
-
     from routine_gym.atomic import check_writable
+    from routine_gym.envs import make_env
 
+    _needs("--episodes", args.episodes, args.episodes >= 1, "≥ 1")
+    _needs("--seed", args.seed, args.seed >= 0, "≥ 0")
+    if args.max_steps is not None:
+        _needs("--max-steps", args.max_steps, args.max_steps >= 1, "≥ 1")
+    _needs("--expert-noise", args.expert_noise, 0 <= args.expert_noise <= 1, "in [0, 1]")
+    if args.expert_noise and args.policy != "expert":
+        raise CLIError(f"--expert-noise is the scripted expert's noise; --policy {args.policy} "
+                       "takes none (use --policy expert, or drop --expert-noise)")
     check_writable(args.out, "--out")  # before recording: no run for an output that fails
     from routine_gym.demo import record_agent_demo
     from routine_gym.envs.factory import default_env_kwargs
 
     env_kwargs = {**default_env_kwargs(args.env_id), **_parse_kwargs(args.env_kwarg)}
-    probe = gym.make(args.env_id, **env_kwargs)
+    probe = make_env(args.env_id, **env_kwargs)
     policy = _resolve_policy(args.policy, probe, args.expert_noise, args.seed)
     probe.close()
     demo = record_agent_demo(
@@ -255,7 +303,17 @@ def cmd_play(args: argparse.Namespace) -> int:
     from routine_gym.atomic import check_writable
     from routine_gym.demo import record_human_demo
 
+    _needs("--episodes", args.episodes, args.episodes >= 1, "≥ 1")
+    _needs("--seed", args.seed, args.seed >= 0, "≥ 0")
+    if args.fps is not None:
+        _needs("--fps", args.fps, args.fps >= 1, "≥ 1")
+    if args.zoom is not None:
+        _needs("--zoom", args.zoom, args.zoom > 0, "> 0")
     check_writable(args.out, "--out")  # before anyone plays a session for nothing
+    if not _has_display():
+        raise CLIError("play needs a display to show the game and read the keyboard, and none "
+                       "is set (DISPLAY or WAYLAND_DISPLAY); record an agent with "
+                       "`routine-gym record` instead")
     try:
         demo = record_human_demo(
             args.env_id,
@@ -273,6 +331,14 @@ def cmd_play(args: argparse.Namespace) -> int:
     print(f"saved {demo.num_episodes} episode(s), {len(demo.actions)} actions, "
           f"score {demo.score:g} to {args.out}")
     return 0
+
+
+def _has_display() -> bool:
+    """Whether pygame can open a window: always off Linux; on Linux an X or Wayland display,
+    or an SDL video driver chosen by hand (`SDL_VIDEODRIVER`, e.g. `dummy` in tests)."""
+    if not sys.platform.startswith("linux"):
+        return True
+    return any(os.environ.get(name) for name in ("DISPLAY", "WAYLAND_DISPLAY", "SDL_VIDEODRIVER"))
 
 
 def _parse_kwargs(pairs: Sequence[str] | None) -> dict[str, Any]:
@@ -315,6 +381,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="seed of the random ablation proposers")
     p.add_argument("--keep-near-primitives", action="store_true",
                    help="do not count primitives as accepted (keeps length-2 routines at α=2)")
+    p.add_argument("--max-routine-length", type=int, default=64, help="longest routine (64)")
     p.add_argument("--out", "-o", help="save the library as JSON here")
     p.set_defaults(func=cmd_mine)
 
@@ -403,9 +470,13 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--seeds", type=int, nargs="+", default=None, help="only these seeds")
     q.add_argument("--envs", nargs="+", default=None, help="only these games")
     q.add_argument("--cuda", action="store_true", help="runs use CUDA (Ray: one GPU per run)")
-    q.add_argument("--cpus-per-run", type=int, default=1, help="CPUs a Ray task asks for (1)")
+    q.add_argument("--cpus-per-run", type=int, default=1,
+                   help="CPUs a Ray task asks for, ≥ 1 (1)")
     q.set_defaults(func=cmd_experiment_run)
-    q = esub.add_parser("report", help="figures (PNG + CSV) and report.md of a sweep folder")
+    q = esub.add_parser("report", help="figures (PNG + CSV) and report.md of a sweep folder",
+                        description="Write OUT/report/ from the runs finished in OUT. It only "
+                        "reads the sweep, so it may run while a sweep runs there (the runs in "
+                        "flight count as missing).")
     q.add_argument("out", help="the sweep folder of `experiment run`")
     q.set_defaults(func=cmd_experiment_report)
     return parser
@@ -436,19 +507,35 @@ def _steps(steps: int) -> str:
 
 
 def cmd_experiment_run(args: argparse.Namespace) -> int:
-    from routine_gym.experiments.specs import EXPERIMENTS
-    from routine_gym.experiments.sweep import install_signal_handlers, run_experiment
+    import shlex
 
-    names = list(EXPERIMENTS) if args.name == "all" else [args.name]
+    from routine_gym.experiments.specs import EXPERIMENTS
+    from routine_gym.experiments.sweep import (
+        check_options,
+        install_signal_handlers,
+        plan,
+        run_experiment,
+        sweep_lock,
+    )
+
+    # Every option is checked before the folder is touched; then the folder is held (one sweep
+    # at a time) across all the experiments of `all`.
+    check_options(args.backend, args.jobs, args.cpus_per_run, args.address)
+    chosen = plan(args.name, args.budget, args.seeds, args.envs)
     install_signal_handlers()
     failed = 0
-    for name in names:
-        summary = run_experiment(name, args.budget, args.out, jobs=args.jobs,
-                                 backend=args.backend, address=args.address, seeds=args.seeds,
-                                 envs=args.envs, cuda=args.cuda, cpus_per_run=args.cpus_per_run)
-        for key, why in summary.failed.items():
-            print(f"[{name}] run {key} failed: {why} (log: {args.out}/runs/{key}/log.txt)")
-        failed += len(summary.failed)
+    with sweep_lock(args.out, command=shlex.join(["routine-gym", *sys.argv[1:]])):
+        for name in EXPERIMENTS:
+            if args.name == "all" and name not in dict(chosen):
+                print(f"[{name}] skipped: none of --envs is one of its games")
+        for name, envs in chosen:
+            summary = run_experiment(name, args.budget, args.out, jobs=args.jobs,
+                                     backend=args.backend, address=args.address,
+                                     seeds=args.seeds, envs=envs, cuda=args.cuda,
+                                     cpus_per_run=args.cpus_per_run)
+            for key, why in summary.failed.items():
+                print(f"[{name}] run {key} failed: {why} (log: {args.out}/runs/{key}/log.txt)")
+            failed += len(summary.failed)
     if failed:
         print(f"{failed} run(s) failed; the others finished. Run the same command to retry them.")
         return 1

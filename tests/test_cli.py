@@ -144,7 +144,7 @@ def test_record_errors(capsys, tmp_path):
                "size needs to be an integer ≥ 2, actual value: 1")
     fails_with(capsys, ["record", "NoSuchEnv-v0", "--out", out], "NoSuchEnv")
     fails_with(capsys, ["record", "MiniQbert-v0", "--out", out, "--episodes", "0"],
-               "num_episodes needs to be ≥ 1")
+               "--episodes needs to be ≥ 1, actual value: 0")
     assert not (tmp_path / "x.npz").exists()
 
 
@@ -190,7 +190,7 @@ def test_mine_with_an_ablation_proposer_and_options(capsys, tmp_path, shipped_de
 
 def test_mine_errors(capsys, tmp_path, shipped_demo):
     fails_with(capsys, ["mine", str(tmp_path / "missing.npz")], "no demo file at")
-    fails_with(capsys, ["mine", shipped_demo, "-k", "0"], "num_routines needs to be ≥ 1")
+    fails_with(capsys, ["mine", shipped_demo, "-k", "0"], "--num-routines needs to be ≥ 1")
     (tmp_path / "junk.npz").write_bytes(b"not a zip at all")
     fails_with(capsys, ["mine", str(tmp_path / "junk.npz")], "not a routine-gym demo")
     with pytest.raises(SystemExit) as excinfo:  # argparse's own check of the choices

@@ -120,9 +120,10 @@ def test_the_cli_records_replays_mines_and_shows_a_minatar_demo(breakout_demo):
     assert "MinAtar/Breakout-v1" in shown and "NOOP" in shown
 
 
+# rapl_a2c --mode rapl and gail on MinAtar run in tests/test_as_a_user.py.
 @pytest.mark.parametrize(("script", "extra"), [
-    ("rapl_a2c", ["--mode", "a2c"]), ("rapl_a2c", ["--mode", "rapl"]),
-    ("rapl_a2c", ["--mode", "macro"]), ("rapl_sqil", []), ("bc", []), ("gail", []),
+    ("rapl_a2c", ["--mode", "a2c"]), ("rapl_a2c", ["--mode", "macro"]), ("rapl_sqil", []),
+    ("bc", []),
 ])
 def test_every_script_runs_on_minatar(script, extra, breakout_demo, tmp_path, repo_root):
     budget = ["--gradient-steps", "50"] if script == "bc" else ["--total-timesteps", "400"]

@@ -35,7 +35,6 @@ import csv
 import io
 import json
 import math
-import os
 import re
 import warnings
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
@@ -46,8 +45,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from routine_gym.atomic import atomic_write_text, temporary_path
-from routine_gym.errors import UsageError
+from routine_gym.atomic import atomic_write_bytes, atomic_write_text
+from routine_gym.errors import UsageError, one_line
+from routine_gym.experiments import json_kind, read_json_object
 
 __all__ = [
     "ABLATION_COLOURS",
@@ -65,11 +65,13 @@ __all__ = [
     "curve_values",
     "demo_score",
     "iqm_intervals",
+    "load_result",
     "load_runs",
     "probability_of_improvement",
     "random_policy_scores",
     "read_episodic_returns",
     "reference_scores",
+    "result_problem",
     "score_matrix",
     "write_report",
 ]
@@ -155,11 +157,96 @@ class Run:
         return f"`{self.key}` ({self.method}, {self.env_id}, seed {self.seed}{variant})"
 
 
-def _read_json(path: Path) -> Any:
-    try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise UsageError(f"{path}: not valid JSON ({exc})") from None
+#: What a run key looks like (12 hex digits today); anything else in a manifest is refused, so a
+#: key never names a path outside `OUT/runs/`.
+_KEY = re.compile(r"[A-Za-z0-9_-]{1,64}")
+#: The hint of an error about a run's `result.json`.
+RESULT_HINT = ("run the sweep's `routine-gym experiment run` command again: it moves a corrupt "
+               "result.json aside and reruns the run")
+
+
+def _number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _eval_problem(evaluation: Any, where: str) -> str | None:
+    if not isinstance(evaluation, dict):
+        return f"`{where}` is {json_kind(evaluation)}, not an object"
+    score = evaluation.get("mean_return")
+    if "mean_return" not in evaluation:
+        return f"`{where}` has no `mean_return`"
+    if not _number(score) or not math.isfinite(score):
+        return f"`{where}.mean_return` is {score!r}, not a finite number"
+    alignment = evaluation.get("mean_alignment")
+    if "mean_alignment" in evaluation and alignment is not None and (
+            not _number(alignment) or math.isinf(alignment)):
+        return f"`{where}.mean_alignment` is {alignment!r}, not a number"
+    return None
+
+
+def _curve_problem(curve: Any) -> str | None:
+    if curve is None:
+        return None
+    if not isinstance(curve, dict):
+        return f"`curve` is {json_kind(curve)}, not an object"
+    bins, total = curve.get("bins"), curve.get("total_steps")
+    if not isinstance(bins, int) or isinstance(bins, bool) or bins < 1:
+        return f"`curve.bins` is {bins!r}, not a number of bins"
+    if not isinstance(total, int) or isinstance(total, bool) or total < 1:
+        return f"`curve.total_steps` is {total!r}, not a number of steps"
+    sums, counts = curve.get("sums"), curve.get("counts")
+    if not isinstance(sums, list) or len(sums) != bins or not all(
+            _number(v) and math.isfinite(v) for v in sums):
+        return f"`curve.sums` is not a list of {bins} finite numbers"
+    if not isinstance(counts, list) or len(counts) != bins or not all(
+            isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in counts):
+        return f"`curve.counts` is not a list of {bins} counts"
+    return None
+
+
+def result_problem(result: Any, key: str | None = None) -> str | None:
+    """What is wrong with a run's result (a parsed `result.json`), or None when it has the shape
+    the report reads: an object with `eval` (an evaluation with a finite `mean_return`), and
+    optionally `evals` (more evaluations by name), `curve` (the binned training curve),
+    `run_dir` (a folder name), `finished` (a date) and `key` (`key`, when given)."""
+    if not isinstance(result, dict):
+        return f"holds {json_kind(result)}, not a JSON object"
+    if key is not None and "key" in result and result["key"] != key:
+        return f"is the result of run {result['key']!r}, not of run {key}"
+    if "eval" not in result:
+        return "has no `eval` (the run's final evaluation)"
+    problem = _eval_problem(result["eval"], "eval")
+    if problem:
+        return problem
+    evals = result.get("evals")
+    if evals is not None:
+        if not isinstance(evals, dict):
+            return f"`evals` is {json_kind(evals)}, not an object"
+        for name, evaluation in evals.items():
+            if problem := _eval_problem(evaluation, f"evals.{name}"):
+                return problem
+    run_dir = result.get("run_dir")
+    if run_dir is not None and (not isinstance(run_dir, str) or not run_dir
+                                or run_dir in (".", "..") or "/" in run_dir or "\\" in run_dir):
+        return f"`run_dir` is {run_dir!r}, not a folder name"
+    finished = result.get("finished")
+    if finished is not None and not isinstance(finished, str):
+        return f"`finished` is {finished!r}, not a date"
+    return _curve_problem(result.get("curve"))
+
+
+def load_result(path: str | Path, key: str | None = None) -> dict[str, Any]:
+    """A run's `result.json`, checked (`result_problem`).
+
+    Raises:
+        UsageError: one line naming the file and what is wrong with it (not JSON, empty,
+            truncated, the wrong shape).
+    """
+    result = read_json_object(path, RESULT_HINT)
+    problem = result_problem(result, key)
+    if problem:
+        raise UsageError(f"{path}: {problem}; {RESULT_HINT}")
+    return result
 
 
 class Manifest(NamedTuple):
@@ -171,6 +258,36 @@ class Manifest(NamedTuple):
     left_out: list[dict[str, Any]] = []  # settings without runs, each with its why
 
 
+def _manifest_run(entry: Any, out: Path, results: dict[str, Mapping[str, Any] | None],
+                  path: Path) -> Run:
+    """A manifest's run entry as a `Run` (with its result); UsageError naming `path`."""
+    if not isinstance(entry, dict):
+        raise UsageError(f"{path}: a run entry is {json_kind(entry)}, not an object "
+                         f"({entry!r:.80})")
+    missing = [f for f in ("key", "method", "env_id", "seed") if f not in entry]
+    if missing:
+        raise UsageError(f"{path}: a run entry lacks {missing[0]!r} ({entry!r:.120})")
+    key = entry["key"]
+    if not isinstance(key, str) or not _KEY.fullmatch(key):
+        raise UsageError(f"{path}: a run entry's key is {key!r}, not a run key")
+    for name in ("method", "env_id", "role"):
+        if name in entry and not isinstance(entry[name], str):
+            raise UsageError(f"{path}: run {key}: `{name}` is {entry[name]!r}, not a string")
+    for name in ("seed", "steps"):
+        value = entry.get(name, 0)
+        if not isinstance(value, int) or isinstance(value, bool):
+            raise UsageError(f"{path}: run {key}: `{name}` is {value!r}, not a whole number")
+    variant = entry.get("variant") or {}
+    if not isinstance(variant, dict):
+        raise UsageError(f"{path}: run {key}: `variant` is {json_kind(variant)}, not an object")
+    if key not in results:
+        result_path = out / "runs" / key / "result.json"
+        results[key] = load_result(result_path, key) if result_path.exists() else None
+    return Run(key=key, method=entry["method"], env_id=entry["env_id"], seed=entry["seed"],
+               variant=dict(variant), role=entry.get("role", "main"),
+               steps=entry.get("steps", 0), folder=out / "runs" / key, result=results[key])
+
+
 def load_runs(out: str | Path, experiment: str,
               results: dict[str, Mapping[str, Any] | None] | None = None) -> Manifest | None:
     """The manifest `OUT/{experiment}.json` with its runs, or None when it is absent.
@@ -179,30 +296,27 @@ def load_runs(out: str | Path, experiment: str,
     experiments (several experiments share runs).
 
     Raises:
-        UsageError: naming the file, for a manifest or result that is not valid JSON or a
-            manifest entry without its fields.
+        UsageError: naming the file, for a manifest or result that is not valid JSON or not of
+            the shape the sweep writes (`result_problem`), or a manifest entry without its
+            fields.
     """
     out = Path(out)
     path = out / f"{experiment}.json"
-    if not path.is_file():
+    if not path.exists():
         return None
-    manifest = _read_json(path)
+    manifest = read_json_object(path)
     results = {} if results is None else results
-    runs = []
-    for entry in manifest.get("runs", []):
-        try:
-            key = entry["key"]
-            if key not in results:
-                result_path = out / "runs" / key / "result.json"
-                results[key] = _read_json(result_path) if result_path.is_file() else None
-            runs.append(Run(key=key, method=entry["method"], env_id=entry["env_id"],
-                            seed=int(entry["seed"]), variant=dict(entry.get("variant") or {}),
-                            role=entry.get("role", "main"), steps=int(entry.get("steps", 0)),
-                            folder=out / "runs" / key, result=results[key]))
-        except (KeyError, TypeError) as exc:
-            raise UsageError(f"{path}: a run entry lacks {exc} ({entry!r})") from None
+    entries = manifest.get("runs", [])
+    if not isinstance(entries, list):
+        raise UsageError(f"{path}: `runs` is {json_kind(entries)}, not a list")
+    runs = [_manifest_run(entry, out, results, path) for entry in entries]
+    gaps = manifest.get("left_out") or []
+    if not isinstance(gaps, list) or not all(
+            isinstance(g, dict) and isinstance(g.get("variant") or {}, dict) for g in gaps):
+        raise UsageError(f"{path}: `left_out` is not a list of settings (objects with an "
+                         "env_id, a variant and why)")
     return Manifest(str(manifest.get("budget", "?")), str(manifest.get("description", "")), runs,
-                    list(manifest.get("left_out") or []))
+                    list(gaps))
 
 
 # -- normalisation ------------------------------------------------------------------------------
@@ -260,6 +374,24 @@ def _human_key(env_id: str) -> str | None:
     return key
 
 
+def _read_cache(cache: Path) -> dict[str, Any]:
+    """The random-policy cache `reference_scores.json`, checked: UsageError naming it."""
+    hint = "delete it: the next report plays the random policy again"
+    stored = read_json_object(cache, hint)
+    envs = stored.get("envs", {})
+    if not isinstance(envs, dict):
+        raise UsageError(f"{cache}: `envs` is {json_kind(envs)}, not an object; {hint}")
+    for env_id, entry in envs.items():
+        if not isinstance(entry, dict):
+            raise UsageError(f"{cache}: `envs.{env_id}` is {json_kind(entry)}, not an object; "
+                             f"{hint}")
+        random = entry.get("random")
+        if random is not None and (not _number(random) or not math.isfinite(random)):
+            raise UsageError(f"{cache}: `envs.{env_id}.random` is {random!r}, not a finite "
+                             f"number; {hint}")
+    return stored
+
+
 def reference_scores(env_ids: Iterable[str], cache: str | Path) -> dict[str, Reference]:
     """Each env's `Reference`, written to `cache` (JSON); a random-policy score already there
     (same episodes and seed) is reused rather than played again."""
@@ -267,11 +399,8 @@ def reference_scores(env_ids: Iterable[str], cache: str | Path) -> dict[str, Ref
 
     cache = Path(cache)
     cached: dict[str, Any] = {}
-    if cache.is_file():
-        try:
-            stored = json.loads(cache.read_text())
-        except json.JSONDecodeError:
-            stored = {}
+    if cache.exists():
+        stored = _read_cache(cache)
         if (stored.get("episodes"), stored.get("seed")) == (REFERENCE_EPISODES, REFERENCE_SEED):
             cached = stored.get("envs", {})
     references: dict[str, Reference] = {}
@@ -535,13 +664,9 @@ class _Writer:
 
     def png(self, fig: Any, name: str) -> None:
         path = self.folder / f"{name}.png"
-        tmp = temporary_path(path)
-        try:
-            fig.savefig(tmp, format="png", dpi=120)
-            os.replace(tmp, path)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+        buffer = io.BytesIO()
+        fig.savefig(buffer, format="png", dpi=120)
+        atomic_write_bytes(path, buffer.getvalue())
         self.written.append(path)
 
 
@@ -584,17 +709,24 @@ def _table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> list[str]:
 
 
 def _num(x: float, digits: int = 2) -> str:
-    return "–" if x is None or not math.isfinite(x) else f"{x:.{digits}f}"
+    """`x` with `digits` decimals; – for none (None, NaN), n/a for an infinity (a division by
+    a score of 0 or nearly)."""
+    if x is None or math.isnan(x):
+        return "–"
+    return "n/a" if math.isinf(x) else f"{x:.{digits}f}"
 
 
 def _pct(x: float, digits: int = 1) -> str:
-    return "–" if x is None or not math.isfinite(x) else f"{100 * x:.{digits}f} %"
+    text = _num(None if x is None else 100 * x, digits)
+    return text if text in ("–", "n/a") else f"{text} %"
 
 
 def _interval(estimate: tuple[float, float, float] | None, percent: bool = True) -> str:
     if estimate is None:
         return "–"
     point, lo, hi = estimate
+    if not all(math.isfinite(v) for v in (point, lo, hi)):
+        return "n/a"
     if percent:
         return f"{100 * point:.1f} % [{100 * lo:.1f}, {100 * hi:.1f}]"
     return f"{point:.2f} [{lo:.2f}, {hi:.2f}]"
@@ -709,8 +841,9 @@ def _imitation(w: _Writer, runs: list[Run]) -> list[str]:
     methods = _ordered(groups, _METHOD_ORDER["imitation"])
     agg = _aggregate(w, groups)
     envs = sorted({r.env_id for rs in groups.values() for r in rs})
-    alignment = {m: _mean_std([r.result["eval"]["mean_alignment"] for r in groups[m]
-                               if "mean_alignment" in r.result["eval"]]) for m in methods}
+    alignment = {m: _mean_std([a for r in groups[m]
+                               if _number(a := r.result["eval"].get("mean_alignment"))
+                               and math.isfinite(a)]) for m in methods}
 
     rows = []
     for m in methods:
@@ -774,7 +907,10 @@ def _relative(rapl: Sequence[float], a2c: Sequence[float]) -> tuple[float, float
         value = relative_performance(float(np.mean(rapl)), s_a)
     except ValueError:
         return math.nan, math.nan
-    return value, _standard_error(rapl) / abs(s_a)
+    error = _standard_error(rapl) / abs(s_a)
+    if not (math.isfinite(value) and math.isfinite(error)):  # S_A too close to 0
+        return math.nan, math.nan
+    return value, error
 
 
 def _rl(w: _Writer, runs: list[Run]) -> list[str]:
@@ -818,8 +954,8 @@ def _rl(w: _Writer, runs: list[Run]) -> list[str]:
              *_table(("game", "A2C runs", "RAPL runs", "S_A", "S_R", "relative", "±"), table),
              f"**RAPL-A2C same or better than A2C (S_R ≥ S_A) on {better} of {len(rows)} "
              "games** (paper: same or better on 25 of 33 Atari games).", "",
-             *([f"The relative performance is undefined where S_A = 0 ({', '.join(undefined)}): "
-                "no bar there.", ""] if undefined else []),
+             *([f"The relative performance is undefined (n/a) where S_A is 0 or too close to 0 "
+                f"({', '.join(undefined)}): no bar there.", ""] if undefined else []),
              *_aggregate_lines(w, agg),
              *_table(("method", "IQM [95 % CI]"),
                      [(m, _interval(agg.iqm.get(m), agg.percent)) for m in agg.iqm])]
@@ -1020,9 +1156,11 @@ def _scalability(w: _Writer, runs: list[Run]) -> list[str]:
             baseline[g] = s_a
 
     def label(run: Run) -> str | None:
-        if run.method == "A2C" or "K" not in run.variant:
-            return None
-        return json.dumps([run.method, int(run.variant["K"]), int(run.variant["min_length"])])
+        k, length = run.variant.get("K"), run.variant.get("min_length", 2)
+        if run.method == "A2C" or not all(isinstance(v, int) and not isinstance(v, bool)
+                                          for v in (k, length)):
+            return None  # not a scalability setting (or not one of whole numbers)
+        return json.dumps([run.method, k, length])
 
     points = []
     for name, group in _groups(runs, label).items():
@@ -1074,7 +1212,8 @@ def _scalability(w: _Writer, runs: list[Run]) -> list[str]:
     if not baseline:
         lines += ["No finished A2C run (or A2C scored 0 everywhere): no reference.", ""]
     return lines + _table(("method", "K", "min length", "games", "seeds", "relative ± s.e."),
-                          [(m, k, n, g, s, f"{_num(mean, 1)} % ± {_num(se, 1)}")
+                          [(m, k, n, g, s, f"{_num(mean, 1)} % ± {_num(se, 1)}"
+                            if math.isfinite(mean) else "n/a")
                            for m, k, n, g, s, mean, se in points])
 
 
@@ -1165,8 +1304,19 @@ def _normalisation_lines(references: Mapping[str, Reference]) -> list[str]:
             *_table(("env", "normalisation", "random", "reference", "note"), rows)]
 
 
+#: Every file a report may write into `OUT/report/`; those this report did not write (an
+#: experiment whose data is gone) are removed, so the folder holds exactly this report.
+REPORT_FILES = (*(f"{stem}.{ext}" for stem in (*FILES.values(), PROFILE_FILE)
+                  for ext in ("png", "csv")), "report.md", "reference_scores.json")
+
+
 def write_report(out: str | Path, *, reps: int = 2000, seed: int = 0) -> list[Path]:
     """Aggregate the sweep in `out` and write `out/report/` (see the module docstring).
+
+    The report only reads the sweep folder, so it may be written while a sweep runs there (it
+    takes no lock): it shows the runs finished so far, and `report.md` says a sweep was
+    running. The files of an earlier report that this one does not write (an experiment whose
+    manifest is gone, a figure with no finished run now) are removed.
 
     Args:
         out: the folder `routine-gym experiment run --out` wrote.
@@ -1178,18 +1328,49 @@ def write_report(out: str | Path, *, reps: int = 2000, seed: int = 0) -> list[Pa
         `report.md` (last).
 
     Raises:
-        UsageError: `out` does not exist or holds no manifest of the six experiments.
+        UsageError: one line naming the file: `out` does not exist, is a file or holds no
+            manifest of the six experiments; a manifest, `result.json` or the random-policy
+            cache that is not valid JSON or not of the sweep's shape; `out/report` that is a
+            file or cannot be written.
     """
     out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"{out}: a file, not a sweep folder (the --out of `routine-gym "
+                         "experiment run`)")
     if not out.is_dir():
         raise UsageError(f"{out}: no such sweep folder (write one with `routine-gym "
                          "experiment run --out`)")
+    folder = out / "report"
+    if folder.exists() and not folder.is_dir():
+        raise UsageError(f"{folder}: a file, where the report's folder goes; move it away")
+    try:
+        written = _write_report(out, folder, reps, seed)
+        for name in REPORT_FILES:
+            stale = folder / name
+            if stale not in written and (stale.is_file() or stale.is_symlink()):
+                stale.unlink()
+    except OSError as exc:  # a read-only folder, a full disk
+        raise UsageError(f"{folder}: cannot write the report there "
+                         f"({exc.strerror or one_line(exc)})") from None
+    return written
+
+
+def _sweep_note(out: Path) -> list[str]:
+    from routine_gym.experiments.sweep import lock_holder
+
+    holder = lock_holder(out)
+    if holder is None:
+        return []
+    return [f"Written while a sweep was running in this folder ({holder}): runs still in "
+            "flight count as missing.", ""]
+
+
+def _write_report(out: Path, folder: Path, reps: int, seed: int) -> list[Path]:
     results: dict[str, Mapping[str, Any] | None] = {}
     manifests = {name: load_runs(out, name, results) for name in EXPERIMENT_NAMES}
     if all(m is None for m in manifests.values()):
         raise UsageError(f"{out}: not a sweep folder: none of "
                          f"{', '.join(n + '.json' for n in EXPERIMENT_NAMES)} is there")
-    folder = out / "report"
     envs = {r.env_id for name in _NORMALISED if manifests[name]
             for r in manifests[name].runs if r.role == "main" and r.finished}
     references = reference_scores(envs, folder / "reference_scores.json")
@@ -1203,6 +1384,7 @@ def write_report(out: str | Path, *, reps: int = 2000, seed: int = 0) -> list[Pa
     lines = [f"# routine-gym report: `{out}`", "",
              f"Budget: **{budget}**. Latest finished run: "
              f"{max(finished) if finished else 'none'}.", "",
+             *_sweep_note(out),
              "Scores are each run's final evaluation (mean return over its evaluation "
              "episodes); aggregates are rliable's IQM with 95 % stratified-bootstrap CIs "
              f"({reps} resamples, seed {seed}) and its probability of improvement.", ""]

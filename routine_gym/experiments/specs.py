@@ -39,6 +39,7 @@ __all__ = [
     "RunSpec",
     "build",
     "count_runs",
+    "games",
     "left_out",
 ]
 
@@ -369,7 +370,8 @@ def build(name: str, budget: str, seeds: Sequence[int] | None = None,
     (`envs` filters the games of every part; CoinRun's experiment has one game).
 
     Raises:
-        UsageError: an unknown experiment, budget, seed or env.
+        UsageError: an unknown experiment or budget, a seed outside the budget's, or an env
+            that is not one of the experiment's games at that budget (`games`).
     """
     return _build(name, budget, seeds, envs)[0]
 
@@ -394,12 +396,11 @@ def _build(name: str, budget: str, seeds: Sequence[int] | None,
         raise UsageError(f"unknown budget {budget!r}; choose from {', '.join(BUDGETS)}")
     sizes = BUDGETS[budget]
     if envs:
-        known = {*sizes.games, *sizes.rl_games, *sizes.imitation_games,
-                 *(sizes.ablation_games or ()), COINRUN}
+        known = games(name, budget)
         unknown = [e for e in envs if e not in known]
         if unknown:
-            raise UsageError(f"--envs {unknown[0]} is not a game of the {budget} budget "
-                             f"(its games: {', '.join(sorted(known))})")
+            raise UsageError(f"--envs {unknown[0]} is not a game of the {name} experiment at "
+                             f"the {budget} budget (its games: {', '.join(known)})")
         keep = set(envs)
         sizes = replace(sizes, games=tuple(g for g in sizes.games if g in keep),
                         rl_games=tuple(g for g in sizes.rl_games if g in keep),
@@ -409,8 +410,6 @@ def _build(name: str, budget: str, seeds: Sequence[int] | None,
     builder = _Builder(sizes)
     EXPERIMENTS[name].builder(builder)
     entries = list(builder.entries.values())
-    if name == "coinrun" and envs and COINRUN not in envs:
-        entries = []
     if seeds:
         bad = [s for s in seeds if not 1 <= s <= sizes.seeds]
         if bad:
@@ -418,6 +417,16 @@ def _build(name: str, budget: str, seeds: Sequence[int] | None,
                              f"1..{sizes.seeds}")
         entries = [e for e in entries if e.role != "main" or e.seed in set(seeds)]
     return entries, builder.left_out
+
+
+@functools.cache
+def games(name: str, budget: str) -> tuple[str, ...]:
+    """The games experiment `name` has at `budget` (what `--envs` may name), sorted.
+
+    Raises:
+        UsageError: an unknown experiment or budget.
+    """
+    return tuple(sorted({e.env_id for e in build(name, budget) if e.role == "main"}))
 
 
 def count_runs(name: str, budget: str) -> tuple[int, int]:
