@@ -22,7 +22,13 @@ import stat
 
 from routine_gym.errors import UsageError
 
-__all__ = ["atomic_write_bytes", "atomic_write_text", "check_writable", "temporary_path"]
+__all__ = [
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "check_folder",
+    "check_writable",
+    "temporary_path",
+]
 
 _TEMPORARY = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)-[0-9a-f]{12}\.tmp$")
 
@@ -94,21 +100,36 @@ def check_writable(path: str | os.PathLike, flag: str = "") -> None:
     """
     path = os.fspath(path)
     what = f"{flag} " if flag else ""
-    folder = os.path.dirname(os.path.abspath(path))
+    _check_place(os.path.dirname(os.path.abspath(path)), f"{what}{path}")
+    _refuse_irregular(path, what)
+
+
+def check_folder(folder: str | os.PathLike, flag: str = "") -> None:
+    """Refuse, before any work, a folder that is a file, lies under one, or cannot be made or
+    written (the run folders of `--run-dir`, a sweep's `--out`); nothing is created."""
+    folder = os.fspath(folder)
+    what = f"{flag} " if flag else ""
+    if os.path.exists(folder) and not os.path.isdir(folder):
+        raise UsageError(f"{what}{folder} is a file, not a folder")
+    _check_place(os.path.abspath(folder), f"{what}{folder}")
+
+
+def _check_place(folder: str, named: str) -> None:
+    """Whether files can be made in `folder`, which may not exist yet (then in the nearest
+    folder above it that does, where the missing ones would be made)."""
     blocker = _first_file_above(folder)
     if blocker is not None:
-        raise UsageError(f"{what}{path}: {blocker} is a file, not a folder")
-    _refuse_irregular(path, what)
+        raise UsageError(f"{named}: {blocker} is a file, not a folder")
     existing = folder
-    while not os.path.isdir(existing):  # the folder the missing ones would be made in
+    while not os.path.isdir(existing):
         existing = os.path.dirname(existing)
-    probe = temporary_path(os.path.join(existing, os.path.basename(path)))
+    probe = temporary_path(os.path.join(existing, "probe"))
     try:
         with open(probe, "xb"):
             pass
         os.unlink(probe)
     except OSError as exc:
-        raise UsageError(f"{what}{path}: cannot write there ({exc.strerror})") from None
+        raise UsageError(f"{named}: cannot write there ({exc.strerror})") from None
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:

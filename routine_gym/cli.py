@@ -254,6 +254,10 @@ def _resolve_policy(spec: str, env, noise: float = 0.0, seed: int = 0) -> Callab
     if ":" not in spec:
         raise CLIError(f"unknown policy {spec!r}: use random, expert or module:function")
     module_name, _, attr = spec.partition(":")
+    if os.getcwd() not in sys.path and "" not in sys.path:
+        # A module of the user's own, beside them, as `python -m` would find it (the
+        # `routine-gym` launcher puts only its own folder on the path).
+        sys.path.insert(0, os.getcwd())
     try:
         policy = getattr(importlib.import_module(module_name), attr)
     except (ImportError, AttributeError) as exc:

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from routine_gym.atomic import atomic_write_bytes, check_writable
+from routine_gym.atomic import atomic_write_bytes, check_folder, check_writable
 from routine_gym.checkpoint import CHECKPOINT_NAME, resume_settings, write_checkpoint
 from routine_gym.errors import UsageError
 from routine_gym.rng import rng_state, set_rng_state
@@ -388,7 +388,11 @@ _NEW_RUNS: list[Run] = []
 
 def _new_run_folder(run_dir: str, stem: str) -> tuple[str, str]:
     """`{run_dir}/{stem}__{time}`, made now; a second run in the same second gets `-2`, ..."""
-    os.makedirs(run_dir, exist_ok=True)
+    check_folder(run_dir, "--run-dir")  # a file on the way, a read-only place
+    try:
+        os.makedirs(run_dir, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"--run-dir {run_dir}: cannot make it ({exc.strerror})") from None
     stamp = int(time.time())
     for k in range(1, 10_000):
         name = f"{stem}__{stamp}" + ("" if k == 1 else f"-{k}")
@@ -397,6 +401,9 @@ def _new_run_folder(run_dir: str, stem: str) -> tuple[str, str]:
             os.mkdir(path)  # atomic: two runs never get the same folder
         except FileExistsError:
             continue
+        except OSError as exc:
+            raise UsageError(f"--run-dir {run_dir}: cannot make a run folder there "
+                             f"({exc.strerror})") from None
         return name, path
     raise UsageError(f"--run-dir {run_dir}: no free run folder name for {stem}")
 

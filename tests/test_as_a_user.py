@@ -75,6 +75,18 @@ def test_record_a_random_policy_then_replay_it_for_each_family(family, tmp_path)
     assert "matches the recording" in ok(user("routine-gym", "replay", "mine.npz", cwd=tmp_path))
 
 
+def test_record_with_a_policy_module_of_the_users_own_folder(tmp_path):
+    # `routine-gym` is a launcher in the venv's bin/: a module beside the user must still be
+    # found, as `python -m` would find it.
+    (tmp_path / "mypkg").mkdir()
+    (tmp_path / "mypkg" / "__init__.py").write_text("")
+    (tmp_path / "mypkg" / "policies.py").write_text("def act(obs):\n    return int(obs[2] > 0)\n")
+    out = ok(user("routine-gym", "record", "CartPole-v1", "--policy", "mypkg.policies:act",
+                  "--episodes", "2", "--out", "cp.npz", cwd=tmp_path))
+    assert "saved 1 episode(s)" in out
+    assert "matches the recording" in ok(user("routine-gym", "replay", "cp.npz", cwd=tmp_path))
+
+
 def test_upgrade_a_version_1_atari_demo(tmp_path):
     # A version-1 file: the shipped Breakout demo without its decisions.
     with np.load(DEMOS / "ALE-Breakout-v5.npz", allow_pickle=False) as data:

@@ -136,3 +136,20 @@ def test_mine_refuses_to_write_its_library_over_its_demo(tmp_path):
         (line,) = proc.stderr.strip().splitlines()
         assert f"--out {out} is the input X.npz; it would be overwritten" in line
     assert demo.read_bytes() == before
+
+
+@pytest.mark.parametrize("script", sorted(SCRIPTS))
+def test_a_run_dir_under_a_file_or_on_an_unwritable_place_is_refused_by_name(script,
+                                                                             tmp_path):
+    (tmp_path / "notes.txt").write_text("a file where a folder should be")
+    module = SCRIPTS[script]
+    for run_dir, message in ((tmp_path / "notes.txt" / "runs",
+                              f"--run-dir {tmp_path / 'notes.txt' / 'runs'}: "
+                              f"{tmp_path / 'notes.txt'} is a file, not a folder"),
+                             (tmp_path / "notes.txt",
+                              f"--run-dir {tmp_path / 'notes.txt'} is a file, not a folder"),
+                             ("/sys/runs", "--run-dir /sys/runs: cannot write there")):
+        with pytest.raises(UsageError) as refused:
+            module.main(module.Args(env_id="MiniQbert-v0", run_dir=str(run_dir)))
+        assert message in str(refused.value)
+    assert sorted(os.listdir(tmp_path)) == ["notes.txt"]

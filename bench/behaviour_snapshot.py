@@ -1,0 +1,140 @@
+"""What a change of structure must not change: the scripts' scalars and the report's CSVs.
+
+    python bench/behaviour_snapshot.py record BEFORE      # on the commit before the change
+    python bench/behaviour_snapshot.py record AFTER       # after it
+    python bench/behaviour_snapshot.py compare BEFORE AFTER
+
+`record` trains every script (every mode of `rapl_a2c.py`) for a short, seeded MiniQbert run with
+one torch thread and keeps every TensorBoard scalar but the wall-clock ones (`charts/SPS`), each
+as its exact float32 bits; then it copies the committed cpu sweep
+(`bench/results/experiments/cpu`), runs `routine-gym experiment report` on the copy and keeps
+its CSVs. `compare` says, per script and per CSV, whether the two are identical, and exits 1
+when one is not.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import shutil
+import struct
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+SNAPSHOT = REPO / "bench" / "results" / "experiments" / "cpu"
+DEMO = str(REPO / "demos" / "MiniQbert-v0.npz")
+COMMON = ["--env-id", "MiniQbert-v0", "--seed", "3", "--torch-threads", "1",
+          "--eval-episodes", "2", "--checkpoint-every", "0"]
+#: (name, script, flags): every script and mode, a few hundred updates each.
+RUNS = [
+    ("rapl_a2c-a2c", "rapl_a2c", ["--mode", "a2c", "--num-envs", "4", "--total-timesteps", "4000"]),
+    ("rapl_a2c-rapl", "rapl_a2c", ["--mode", "rapl", "--num-envs", "4",
+                                   "--total-timesteps", "4000"]),
+    ("rapl_a2c-macro", "rapl_a2c", ["--mode", "macro", "--num-envs", "4",
+                                    "--total-timesteps", "4000"]),
+    ("rapl_sqil", "rapl_sqil", ["--demo", DEMO, "--total-timesteps", "1500",
+                                "--learning-starts", "200", "--eval-max-steps", "200"]),
+    ("rapl_sqil-k0", "rapl_sqil", ["--demo", DEMO, "--num-routines", "0",
+                                   "--total-timesteps", "1500", "--learning-starts", "200",
+                                   "--eval-max-steps", "200"]),
+    ("bc", "bc", ["--demo", DEMO, "--gradient-steps", "300", "--eval-max-steps", "200"]),
+    ("gail", "gail", ["--demo", DEMO, "--num-envs", "2", "--total-timesteps", "2048",
+                      "--eval-max-steps", "200"]),
+    ("option_critic", "option_critic", ["--num-envs", "4", "--total-timesteps", "4000"]),
+    ("compile_a2c", "compile_a2c", ["--demo", DEMO, "--num-envs", "4",
+                                    "--total-timesteps", "4000", "--compile-iterations", "50"]),
+]
+WALL_CLOCK = {"charts/SPS"}
+
+
+def _scalars(folder: Path) -> dict[str, list[list]]:
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    out: dict[str, list[list]] = {}
+    for path in sorted(folder.glob("events.out.tfevents.*")):
+        events = EventAccumulator(str(path), size_guidance={"scalars": 0})
+        events.Reload()
+        for tag in events.Tags()["scalars"]:
+            if tag in WALL_CLOCK:
+                continue
+            # float32 bits: "identical" means bit for bit, not within a tolerance.
+            out.setdefault(tag, []).extend(
+                [e.step, struct.pack("<f", e.value).hex()] for e in events.Scalars(tag))
+    return out
+
+
+def record(dest: Path) -> None:
+    dest.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, script, flags in RUNS:
+            run_dir = Path(tmp) / name
+            words = [sys.executable, str(REPO / "algos" / f"{script}.py"), *COMMON, *flags,
+                     "--run-dir", str(run_dir)]
+            proc = subprocess.run(words, capture_output=True, text=True)
+            if proc.returncode != 0:
+                sys.exit(f"{name} failed: {proc.stderr.strip().splitlines()[-1:]}")
+            (run,) = run_dir.iterdir()
+            scalars = _scalars(run)
+            evaluation = json.loads((run / "eval.json").read_text())
+            kept = {"scalars": scalars, "eval_returns": evaluation.get("returns")}
+            (dest / f"{name}.json").write_text(json.dumps(kept, indent=1, sort_keys=True))
+            print(f"{name}: {sum(len(v) for v in scalars.values())} scalars, "
+                  f"{len(scalars)} tags", flush=True)
+        sweep = Path(tmp) / "sweep"
+        shutil.copytree(SNAPSHOT, sweep, ignore=shutil.ignore_patterns("report"))
+        proc = subprocess.run([sys.executable, "-m", "routine_gym.cli", "experiment", "report",
+                               str(sweep)], capture_output=True, text=True)
+        if proc.returncode != 0:
+            sys.exit(f"report failed: {proc.stderr.strip()}")
+        (dest / "report").mkdir(exist_ok=True)
+        for csv in sorted((sweep / "report").glob("*.csv")):
+            shutil.copy(csv, dest / "report" / csv.name)
+        shutil.copy(sweep / "report" / "report.md", dest / "report" / "report.md")
+        print(f"report: {len(list((dest / 'report').glob('*.csv')))} CSVs", flush=True)
+
+
+def _digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+
+
+def compare(before: Path, after: Path) -> int:
+    differ = 0
+    for name, _, _ in RUNS:
+        a, b = (json.loads((d / f"{name}.json").read_text()) for d in (before, after))
+        same = a == b
+        differ += not same
+        print(f"{name:16s} scalars {'identical' if same else 'DIFFER'}")
+    for csv in sorted((before / "report").glob("*.csv")):
+        other = after / "report" / csv.name
+        same = other.is_file() and _digest(csv) == _digest(other)
+        differ += not same
+        print(f"{csv.name:28s} {'identical' if same else 'DIFFER'}")
+    extra = {p.name for p in (after / "report").glob("*.csv")} - {
+        p.name for p in (before / "report").glob("*.csv")}
+    for name in sorted(extra):
+        differ += 1
+        print(f"{name:28s} only after")
+    return 1 if differ else 0
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="action", required=True)
+    r = sub.add_parser("record")
+    r.add_argument("dest", type=Path)
+    c = sub.add_parser("compare")
+    c.add_argument("before", type=Path)
+    c.add_argument("after", type=Path)
+    args = parser.parse_args()
+    if args.action == "record":
+        record(args.dest)
+        return 0
+    return compare(args.before, args.after)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
