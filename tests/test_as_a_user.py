@@ -69,10 +69,12 @@ def test_mine_show_and_replay_a_shipped_demo_of_each_family(family, tmp_path):
 @pytest.mark.parametrize("family", list(FAMILIES))
 def test_record_a_random_policy_then_replay_it_for_each_family(family, tmp_path):
     env_id, _ = FAMILIES[family]
+    # A missing folder of the output is made, as for every output (mine, upgrade, the scripts).
     out = ok(user("routine-gym", "record", env_id, "--episodes", "2", "--max-steps", "60",
-                  "--out", "mine.npz", cwd=tmp_path))
+                  "--out", "new/folder/mine.npz", cwd=tmp_path))
     assert "saved 1 episode(s)" in out
-    assert "matches the recording" in ok(user("routine-gym", "replay", "mine.npz", cwd=tmp_path))
+    assert "matches the recording" in ok(user("routine-gym", "replay", "new/folder/mine.npz",
+                                              cwd=tmp_path))
 
 
 def test_record_with_a_policy_module_of_the_users_own_folder(tmp_path):
