@@ -4,15 +4,15 @@
     python algos/compile_a2c.py --env-id MinAtar/Breakout-v1 --demo demo.npz
 
 Phase 1, CompILE (Kipf et al. 2019; the model, its ELBO and the options are in
-`routine_gym/compile.py`). The demo's decisions and the states the agent saw at them (replayed
-from its seeds through the agent's observation pipeline) are cut into windows of 32 decisions;
-a recognition model segments each into M = 10 segments (Gumbel-softmax boundaries, a Poisson(4)
-prior on their lengths) with one concrete latent of 8 codes per segment, and a decoder
-π(a | s, z) reconstructs the actions. The whole demo is then segmented with hard boundaries,
-the decoder and a termination head β(s', z) are trained on those segments, and the K = 3 codes
-with the most segments become options: option k runs argmax_a π(a | s, z_k) until
-β(s', z_k) > 0.5, twice the longest segment of the K codes, or the end of the episode. The
-trained model is saved as `compile_model.pt` in the run folder (state_dict and JSON, read with
+`routine_gym/baselines/compile/`). The demo's decisions and the states the agent saw at them
+(replayed from its seeds through the agent's observation pipeline) are cut into windows of 32
+decisions; a recognition model segments each into M = 10 segments (Gumbel-softmax boundaries, a
+Poisson(4) prior on their lengths) with one concrete latent of 8 codes per segment, and a decoder
+π(a | s, z) reconstructs the actions. The whole demo is then segmented with hard boundaries, the
+decoder and a termination head β(s', z) are trained on those segments, and the K = 3 codes with the
+most segments become options: option k runs argmax_a π(a | s, z_k) until β(s', z_k) > 0.5, twice
+the longest segment of the K codes, or the end of the episode. The trained model is saved as
+`compile_model.pt` in the run folder (state_dict and JSON, read with
 `torch.load(weights_only=True)`) and in every checkpoint, so a resumed run keeps its options.
 
 Phase 2, the controller: A2C over `Discrete(|A| + K)` with the MacroAction treatment of options
@@ -35,7 +35,7 @@ Nature CNN (about 15 minutes in all, against hours for the controller's 10M step
 Evaluation runs through `routine_gym.evaluation.evaluate_policy` (eval.json, alignment with the
 demo), which takes a policy of primitive actions and has no place for an env wrapper: the
 evaluated policy runs the controller's options itself, one primitive a call, exactly as
-`OptionActionWrapper` would (`routine_gym.compile.option_primitive_policy`).
+`OptionActionWrapper` would (`routine_gym.baselines.compile.option_primitive_policy`).
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ import torch.nn as nn
 from torch.distributions.categorical import Categorical
 
 import routine_gym
-from routine_gym.compile import (
+from routine_gym.baselines.compile import (
     CompILE,
     CompILEConfig,
     CompILEOptions,

@@ -10,7 +10,7 @@ options, an intra-option softmax policy `π_ω(· | s)` per option and a sigmoid
 `β_ω(s)` per option. Each env runs one option at a time: at every state the running option ω
 terminates with probability `β_ω(s)` (and at the start of an episode), and a new one is chosen
 ε-greedily on `Q_Ω(s, ·)` (ε = 0.1); the action is drawn from `π_ω(· | s)`. With the targets of
-`routine_gym.option_critic`:
+`routine_gym.baselines.option_critic`:
 
     U(s', ω) = (1 − β_ω(s')) Q_Ω(s', ω) + β_ω(s') max Q_Ω(s', ·)     G_t = r_t + γ G_{t+1}, G_N = U
     L = −log π_ω(a_t|s_t)(G_t − Q_Ω(s_t, ω_t)) − λ_entropy H(π_ω(·|s_t))
@@ -38,15 +38,15 @@ import torch.nn as nn
 from torch.distributions.categorical import Categorical
 
 import routine_gym
-from routine_gym.envs.factory import make_env
-from routine_gym.evaluation import evaluate_policy, save_evaluation
-from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.option_critic import (
+from routine_gym.baselines.option_critic import (
     choose_options,
     option_returns,
     termination_advantage,
     value_upon_arrival,
 )
+from routine_gym.envs.factory import make_env
+from routine_gym.evaluation import evaluate_policy, save_evaluation
+from routine_gym.networks import ObservationEncoder, layer_init
 from routine_gym.run import Every, eval_env_kwargs, run_script, start_run, train_env_kwargs
 
 
@@ -148,13 +148,20 @@ class Agent(nn.Module):
 CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "rng", "args")
 
 
+def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
+    """The option-critic flags' domains (the shared ones are `routine_gym.run.DOMAINS`)."""
+    return [
+        ("num_options", args.num_options >= 1, "≥ 1"),
+        ("option_epsilon", 0 <= args.option_epsilon <= 1, "in [0, 1]"),
+        # A cost: a negative one would pay the agent for switching options.
+        ("deliberation_cost", args.deliberation_cost >= 0, "≥ 0"),
+        ("term_coef", args.term_coef >= 0, "≥ 0"),
+    ]
+
+
 def main(args: Args) -> dict | None:
     run = start_run(args, "option_critic.py", CHECKPOINT_KEYS, lower_budget=True,
-                    extra_checks=lambda a: [
-                        ("num_options", a.num_options >= 1, "≥ 1"),
-                        ("option_epsilon", 0 <= a.option_epsilon <= 1, "in [0, 1]"),
-                        ("term_coef", a.term_coef >= 0, "≥ 0"),
-                    ])
+                    extra_checks=extra_checks)
     args, device, rng, writer = run.args, run.device, run.rng, run.writer
 
     # Env setup: same-step autoreset, so the step that ends an episode returns the reset obs.

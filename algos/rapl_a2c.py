@@ -192,13 +192,17 @@ class Agent(nn.Module):
 CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "rng", "args", "library")
 
 
+def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
+    """The rules between flags (each flag's own domain is in `routine_gym.run.DOMAINS`)."""
+    return [("min_routine_length", args.min_routine_length <= args.max_routine_length,
+             f"≤ --max-routine-length ({args.max_routine_length})")]
+
+
 def main(args: Args) -> None:
     # An explicit --total-timesteps on --resume sets a new budget: higher to train on, or at
     # most the steps done to go straight to evaluation and demo recording.
     run = start_run(args, "rapl_a2c.py", CHECKPOINT_KEYS, lower_budget=True,
-                    extra_checks=lambda a: [("min_routine_length",
-                                             a.min_routine_length <= a.max_routine_length,
-                                             f"≤ --max-routine-length ({a.max_routine_length})")])
+                    extra_checks=extra_checks)
     args, device, writer = run.args, run.device, run.writer
     for levels in args.extra_evals:
         level_env_kwargs(args, levels)  # refused now, not after training

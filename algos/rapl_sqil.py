@@ -151,9 +151,13 @@ CHECKPOINT_KEYS = ("model", "target", "optimizer", "global_step", "updates", "rn
                    "library")
 
 
+def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
+    """SQIL's rule on top of `routine_gym.run.DOMAINS`: a batch is half demo, half agent."""
+    return [("batch_size", args.batch_size >= 2, "≥ 2 (half demo, half agent)")]
+
+
 def main(args: Args) -> dict | None:
-    run = start_run(args, "rapl_sqil.py", CHECKPOINT_KEYS, extra_checks=lambda a: [
-        ("batch_size", a.batch_size >= 2, "≥ 2 (half demo, half agent)")])
+    run = start_run(args, "rapl_sqil.py", CHECKPOINT_KEYS, extra_checks=extra_checks)
     args, device, rng, writer = run.args, run.device, run.rng, run.writer
 
     # The demo, its routines, and the demo buffer D_prim ∪ D_routine in the agent's view.

@@ -48,7 +48,7 @@ RUNS = [
     ("compile_a2c", "compile_a2c", ["--demo", DEMO, "--num-envs", "4",
                                     "--total-timesteps", "4000", "--compile-iterations", "50"]),
 ]
-WALL_CLOCK = {"charts/SPS"}
+WALL_CLOCK = {"charts/SPS", "charts/decisions_per_second"}
 
 
 def _scalars(folder: Path) -> dict[str, list[list]]:

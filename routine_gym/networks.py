@@ -1,8 +1,8 @@
 """Networks of SPEC §5, shared by the training scripts.
 
 Nature CNN on Atari (Mnih et al. 2015), IMPALA CNN on Procgen (Espeholt et al. 2018, as in the
-Procgen paper), a 64-64 tanh MLP for flat observations and a small CNN for other images; a
-family's profile may bring a torso of its own (`EnvProfile.torso`: MinAtar's network).
+Procgen paper), MinAtar's network on MinAtar (Young & Tian 2019), a 64-64 tanh MLP for flat
+observations and a small CNN for other images.
 `make_torso(env_id, obs_shape)` builds the one the env's profile names (`EnvProfile.network`);
 `ObservationEncoder` adds the scaling and the channel order, so a script's agent is a torso
 plus its heads.
@@ -61,11 +61,15 @@ def image_layout(shape: tuple[int, ...]) -> tuple[int, int, int, bool]:
 
 def make_torso(env_id: str, obs_shape: tuple[int, ...]) -> tuple[nn.Module, int]:
     """The feature extractor for `env_id`'s observations and its output size."""
-    profile = profile_for(env_id)
-    own = profile.torso(tuple(obs_shape))
-    if own is not None:  # a family with a network of its own (MinAtar's)
-        return own
-    network = profile.network
+    network = profile_for(env_id).network
+    if network == "minatar":
+        # MinAtar's network (Young & Tian 2019): one 3×3 convolution of 16 channels, stride 1,
+        # then a 128-unit layer, on the (C, 10, 10) observation.
+        c, h, w = obs_shape
+        return nn.Sequential(
+            layer_init(nn.Conv2d(c, 16, 3, stride=1)), nn.ReLU(), nn.Flatten(),
+            layer_init(nn.Linear(16 * (h - 2) * (w - 2), 128)), nn.ReLU(),
+        ), 128
     if len(obs_shape) == 1:
         return nn.Sequential(
             layer_init(nn.Linear(obs_shape[0], 64)), nn.Tanh(),

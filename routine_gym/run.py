@@ -52,7 +52,9 @@ __all__ = [
 
 # -- the argument check ------------------------------------------------------------------------
 
-#: Each numeric flag's domain, by `Args` field name: (test, what the message says it needs).
+#: Each numeric flag's domain, by `Args` field name: (test, what the message says it needs). A
+#: flag of one script alone has its rule in that script's module-level `extra_checks(args)`;
+#: tests/test_args_domains.py checks that every numeric flag of every script has one or the other.
 _AT_LEAST_1 = (lambda v: v >= 1, "≥ 1")
 _AT_LEAST_0 = (lambda v: v >= 0, "≥ 0")
 _POSITIVE = (lambda v: v > 0, "> 0")
@@ -99,6 +101,8 @@ DOMAINS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "torch_threads": _AT_LEAST_0,
     "num_levels": _AT_LEAST_0,
     "start_level": _AT_LEAST_0,
+    # NumPy's global seed (`np.random.seed`) takes no other; Gymnasium refuses negative ones.
+    "seed": (lambda v: 0 <= v < 2**32, "in [0, 2**32 - 1]"),
 }
 
 

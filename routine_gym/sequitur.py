@@ -295,146 +295,162 @@ def _encode(episodes: list[np.ndarray]) -> tuple[np.ndarray, int]:
     return np.ascontiguousarray(np.concatenate(parts), dtype=np.int64), max_action
 
 
-def _induce_python(encoded: np.ndarray) -> tuple[list[int], list[int]]:
-    """Reference Sequitur over encoded symbol values; returns the live rules as `_collect` does."""
-    # Symbol storage: parallel arrays indexed by symbol id.
-    val: list[int] = []  # 2a for action a, 2r+1 for rule r, _GUARD for a rule's guard node
-    nxt: list[int] = []
-    prv: list[int] = []
-    guard: list[int] = []  # guard symbol id of each rule
-    count: list[int] = []  # references to each rule
-    guard_rule: dict[int, int] = {}  # guard symbol id -> rule
-    table: dict[int, int] = {}  # digram key -> id of the first symbol of its occurrence
+class _PythonSequitur:
+    """The reference Sequitur's state and steps: the symbols of every rule body, as parallel
+    arrays indexed by symbol id, and the index of the digrams that occur.
 
-    def new_symbol(v: int) -> int:
-        val.append(v)
-        nxt.append(_NIL)
-        prv.append(_NIL)
+    Each rule body is a circular doubly linked list through its guard node. The methods are the
+    steps of the published algorithm (and the functions of the C++ core): `check` indexes a new
+    digram or resolves a repeated one (`match`), `substitute` replaces a digram by a rule
+    reference, and `expand` inlines a rule that is used only once (rule utility).
+    """
+
+    def __init__(self) -> None:
+        self.val: list[int] = []  # 2a for action a, 2r+1 for rule r, _GUARD for a guard node
+        self.nxt: list[int] = []
+        self.prv: list[int] = []
+        self.guard: list[int] = []  # guard symbol id of each rule
+        self.count: list[int] = []  # references to each rule
+        self.guard_rule: dict[int, int] = {}  # guard symbol id -> rule
+        self.table: dict[int, int] = {}  # digram key -> id of the first symbol of its occurrence
+
+    def new_symbol(self, v: int) -> int:
+        self.val.append(v)
+        self.nxt.append(_NIL)
+        self.prv.append(_NIL)
         if v >= 0 and v & 1:
-            count[v >> 1] += 1
-        return len(val) - 1
+            self.count[v >> 1] += 1
+        return len(self.val) - 1
 
-    def new_rule() -> int:
-        r = len(guard)
-        g = new_symbol(_GUARD)
-        nxt[g] = g
-        prv[g] = g
-        guard.append(g)
-        count.append(0)
-        guard_rule[g] = r
+    def new_rule(self) -> int:
+        r = len(self.guard)
+        g = self.new_symbol(_GUARD)
+        self.nxt[g] = g
+        self.prv[g] = g
+        self.guard.append(g)
+        self.count.append(0)
+        self.guard_rule[g] = r
         return r
 
-    def delete_digram(s: int) -> None:
-        n = nxt[s]
-        vs, vn = val[s], val[n]
+    def append(self, rule: int, v: int) -> None:
+        """Add symbol value `v` at the end of `rule` and enforce digram uniqueness."""
+        s = self.new_symbol(v)
+        self.insert_after(self.prv[self.guard[rule]], s)
+        self.check(self.prv[s])
+
+    def delete_digram(self, s: int) -> None:
+        val, table = self.val, self.table
+        vs, vn = val[s], val[self.nxt[s]]
         if vs < 0 or vn < 0:
             return
         k = (vs << 32) | vn
         if table.get(k) == s:
             del table[k]
 
-    def join(left: int, right: int) -> None:
+    def join(self, left: int, right: int) -> None:
+        val, nxt, prv = self.val, self.nxt, self.prv
         if nxt[left] != _NIL:
-            delete_digram(left)
+            self.delete_digram(left)
             # In a run like `aaa` only the first `aa` is indexed; when a symbol of the run is
             # removed, the overlapping digram that remains must be indexed instead.
             rp, rn = prv[right], nxt[right]
             v = val[right]
             if rp != _NIL and rn != _NIL and v >= 0 and v == val[rp] and v == val[rn]:
-                table[(v << 32) | v] = right
+                self.table[(v << 32) | v] = right
             lp, ln = prv[left], nxt[left]
             v = val[left]
             if lp != _NIL and ln != _NIL and v >= 0 and v == val[lp] and v == val[ln]:
-                table[(v << 32) | v] = lp
+                self.table[(v << 32) | v] = lp
         nxt[left] = right
         prv[right] = left
 
-    def insert_after(x: int, y: int) -> None:
-        join(y, nxt[x])
-        join(x, y)
+    def insert_after(self, x: int, y: int) -> None:
+        self.join(y, self.nxt[x])
+        self.join(x, y)
 
-    def delete(x: int) -> None:
-        join(prv[x], nxt[x])
-        delete_digram(x)
-        v = val[x]
+    def delete(self, x: int) -> None:
+        self.join(self.prv[x], self.nxt[x])
+        self.delete_digram(x)
+        v = self.val[x]
         if v >= 0 and v & 1:
-            count[v >> 1] -= 1
+            self.count[v >> 1] -= 1
 
-    def check(s: int) -> bool:
+    def check(self, s: int) -> bool:
         """Index the digram starting at `s`, or resolve it if it already occurs."""
-        n = nxt[s]
-        vs, vn = val[s], val[n]
+        val, nxt = self.val, self.nxt
+        vs, vn = val[s], val[nxt[s]]
         if vs < 0 or vn < 0:
             return False
         k = (vs << 32) | vn
-        m = table.get(k)
+        m = self.table.get(k)
         if m is None:
-            table[k] = s
+            self.table[k] = s
             return False
         if nxt[m] != s and m != s:  # overlapping occurrences (`aaa`) are left alone
-            match(s, m)
+            self.match(s, m)
         return True
 
-    def substitute(s: int, r: int) -> None:
+    def substitute(self, s: int, r: int) -> None:
         """Replace the digram starting at `s` by a reference to rule `r`."""
-        q = prv[s]
-        delete(nxt[q])
-        delete(nxt[q])
-        insert_after(q, new_symbol(2 * r + 1))
-        if not check(q):
-            check(nxt[q])
+        q = self.prv[s]
+        self.delete(self.nxt[q])
+        self.delete(self.nxt[q])
+        self.insert_after(q, self.new_symbol(2 * r + 1))
+        if not self.check(q):
+            self.check(self.nxt[q])
 
-    def match(s: int, m: int) -> None:
+    def match(self, s: int, m: int) -> None:
         """The digram at `s` repeats the one at `m`: make (or reuse) a rule for it."""
+        val, nxt, prv = self.val, self.nxt, self.prv
         pm, nn = prv[m], nxt[nxt[m]]
         if val[pm] == _GUARD and val[nn] == _GUARD:
             # The earlier occurrence is the whole body of a rule: reuse that rule.
-            r = guard_rule[pm]
-            substitute(s, r)
+            r = self.guard_rule[pm]
+            self.substitute(s, r)
         else:
-            r = new_rule()
-            g = guard[r]
-            insert_after(prv[g], new_symbol(val[s]))
-            insert_after(prv[g], new_symbol(val[nxt[s]]))
-            substitute(m, r)
-            substitute(s, r)
+            r = self.new_rule()
+            g = self.guard[r]
+            self.insert_after(prv[g], self.new_symbol(val[s]))
+            self.insert_after(prv[g], self.new_symbol(val[nxt[s]]))
+            self.substitute(m, r)
+            self.substitute(s, r)
             first = nxt[g]
-            table[(val[first] << 32) | val[nxt[first]]] = first
+            self.table[(val[first] << 32) | val[nxt[first]]] = first
         # Rule utility: the rule at the head of r's body may now be used only once.
-        first = nxt[guard[r]]
+        first = nxt[self.guard[r]]
         v = val[first]
-        if v & 1 and count[v >> 1] == 1:
-            expand(first)
+        if v & 1 and self.count[v >> 1] == 1:
+            self.expand(first)
 
-    def expand(s: int) -> None:
+    def expand(self, s: int) -> None:
         """`s` is the last use of its rule: put the rule's body in its place."""
+        val, nxt, prv = self.val, self.nxt, self.prv
         left, right = prv[s], nxt[s]
         r = val[s] >> 1
-        g = guard[r]
+        g = self.guard[r]
         f, last = nxt[g], prv[g]
-        delete_digram(s)
-        join(left, f)
-        join(last, right)
+        self.delete_digram(s)
+        self.join(left, f)
+        self.join(last, right)
         vl, vr = val[last], val[right]
         if vl >= 0 and vr >= 0:
-            table[(vl << 32) | vr] = last
-        count[r] = 0
-        del guard_rule[g]
+            self.table[(vl << 32) | vr] = last
+        self.count[r] = 0
+        del self.guard_rule[g]
 
-    start = new_rule()
-    start_guard = guard[start]
 
+def _induce_python(encoded: np.ndarray) -> tuple[list[int], list[int]]:
+    """Reference Sequitur over encoded symbol values; returns the live rules as `_collect` does."""
+    sequitur = _PythonSequitur()
+    start = sequitur.new_rule()
     old_limit = sys.getrecursionlimit()
     sys.setrecursionlimit(max(old_limit, 100_000))
     try:
         for v in encoded.tolist():
-            s = new_symbol(v)
-            insert_after(prv[start_guard], s)
-            check(prv[s])
+            sequitur.append(start, v)
     finally:
         sys.setrecursionlimit(old_limit)
-
-    return _collect(val, nxt, guard, start)
+    return _collect(sequitur.val, sequitur.nxt, sequitur.guard, start)
 
 
 def _collect(

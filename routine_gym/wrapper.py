@@ -20,11 +20,10 @@ from gymnasium.core import ObsType
 from gymnasium.vector.utils import concatenate, create_empty_array
 
 from routine_gym.library import RoutineLibrary, routine_name
+from routine_gym.macro_info import PAD_ACTION, new_step_arrays, write_routine_info
 
 __all__ = ["RoutineActionWrapper", "merge_final"]
 
-#: The action stored in the padding entries of `info["routine_actions"]`; never a valid action.
-PAD_ACTION = -1
 #: Steps served by one allocation of the `routine_*` info arrays (see `_new_info_blocks`).
 _BLOCK_ROWS = 256
 # Observation spaces whose samples are numpy arrays (or integers) of a fixed shape and dtype.
@@ -46,26 +45,16 @@ class RoutineActionWrapper(
     (the MacroAction baseline).
 
     The step returns the last inner observation, the summed reward, the last inner step's
-    `terminated`/`truncated`, and the last inner `info` extended (in place, as
-    `RecordEpisodeStatistics` does) with these keys:
-
-    - ``routine_index`` (int): `k` for routine `k`, `-1` for a primitive action.
-    - ``routine_length`` (int): the number of primitive steps executed, `1 ≤ L ≤ len(routine)`.
-    - ``routine_actions`` (np.int64 array): the primitive actions, executed first, then padding.
-    - ``routine_rewards`` (np.float64 array): the reward of each executed primitive step.
-    - ``routine_terminated``, ``routine_truncated`` (bool arrays): each step's flags; only the
-      last executed entry can be True, since a routine stops at the first end of episode.
-    - ``routine_observations`` (array, or the nested structure of the observation space): the
-      observation after each executed step, stacked; only with `record_observations=True`.
+    `terminated`/`truncated`, and the last inner `info` extended with the ``routine_*`` keys of
+    `routine_gym.macro_info` (the contract it shares with CompILE's `OptionActionWrapper`):
+    the routine's index (`-1` for a primitive action), the primitive steps it executed, and
+    their actions, rewards, flags and (with `record_observations=True`) observations.
 
     A primitive action is reported as a routine of length 1, so a learner has one code path.
     Every array has the same length, :attr:`max_routine_length` (the longest routine, 1 with no
     routines): the first `routine_length` entries are the executed steps and the rest padding
-    (action `-1`, reward `0.0`, flags `False`, observation zeros). The fixed shape is what lets
-    `SyncVectorEnv`/`AsyncVectorEnv` stack the infos of sub-envs that ran routines of different
-    lengths (they assume a same-shaped array per key), and with zero padding
-    `np.sum(gamma ** np.arange(max_routine_length) * info["routine_rewards"])` is the discounted
-    routine reward without a mask.
+    (action `-1`, reward `0.0`, flags `False`, observation zeros), which is what lets the vector
+    envs stack the infos of sub-envs that ran routines of different lengths.
 
     Recording observations copies one observation per primitive step, plus padding; pass
     `record_observations=False` when the learner does not need the intermediate states.
@@ -184,11 +173,8 @@ class RoutineActionWrapper(
         is already in place, and it shares no memory with any other step's row, so a consumer
         may keep or modify what it was given.
         """
-        shape = (_BLOCK_ROWS, self.max_routine_length)
-        self._block_actions = np.full(shape, PAD_ACTION, dtype=np.int64)
-        self._block_rewards = np.zeros(shape, dtype=np.float64)
-        self._block_terminated = np.zeros(shape, dtype=np.bool_)
-        self._block_truncated = np.zeros(shape, dtype=np.bool_)
+        (self._block_actions, self._block_rewards, self._block_terminated,
+         self._block_truncated) = new_step_arrays((_BLOCK_ROWS, self.max_routine_length))
         self._block_row = 0
 
     def step(self, action: int) -> tuple[ObsType, SupportsFloat, bool, bool, dict[str, Any]]:
@@ -255,15 +241,10 @@ class RoutineActionWrapper(
         if truncated:
             routine_truncated[executed - 1] = True
 
-        # Extended in place, as Gymnasium's own wrappers (RecordEpisodeStatistics) do.
-        info["routine_index"] = a - n if a >= n else -1
-        info["routine_length"] = executed
-        info["routine_actions"] = routine_actions
-        info["routine_rewards"] = routine_rewards
-        info["routine_terminated"] = routine_terminated
-        info["routine_truncated"] = routine_truncated
-        if observations is not None:
-            info["routine_observations"] = self._stack_observations(observations)
+        write_routine_info(
+            info, a - n if a >= n else -1, executed, routine_actions, routine_rewards,
+            routine_terminated, routine_truncated,
+            None if observations is None else self._stack_observations(observations))
         return obs, total_reward, terminated, truncated, info
 
     def _stack_observations(self, observations: list[Any]) -> Any:

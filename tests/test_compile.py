@@ -18,7 +18,7 @@ import pytest
 import torch
 from script_loader import load_script
 
-from routine_gym.compile import (
+from routine_gym.baselines.compile import (
     CompILE,
     CompILEConfig,
     CompILEOptions,

@@ -16,9 +16,10 @@ from pathlib import Path
 import pytest
 
 from routine_gym.errors import UsageError
+from routine_gym.experiments import backends, registry, specs, sweep, training_curves
 from routine_gym.experiments import report as report_mod
-from routine_gym.experiments import specs, sweep
-from routine_gym.experiments.specs import BUDGETS, EXPERIMENTS, RunSpec, build, count_runs
+from routine_gym.experiments.registry import EXPERIMENTS, build, count_runs
+from routine_gym.experiments.specs import BUDGETS, RunSpec
 
 NAMES = ["imitation", "rl", "curves", "coinrun", "scalability", "ablation"]
 CLI = [sys.executable, "-m", "routine_gym.cli"]
@@ -114,11 +115,11 @@ def test_scalability_leaves_out_a_length_the_shipped_demo_has_no_routine_of():
                 if e.env_id == "MinAtar/Seaquest-v1" and e.method == "RAPL-A2C"}
     assert seaquest == {'{"K": 1, "min_length": 2}', '{"K": 3, "min_length": 2}',
                         '{"K": 6, "min_length": 2}'}
-    assert specs.left_out("scalability", "cpu") == [{
+    assert registry.left_out("scalability", "cpu") == [{
         "env_id": "MinAtar/Seaquest-v1", "variant": {"K": 3, "min_length": 5},
         "why": "its shipped demo has no routine of ≥ 5 actions"}]
-    assert specs.left_out("scalability", "cpu", envs=["MinAtar/Breakout-v1"]) == []
-    assert specs.left_out("rl", "cpu") == []
+    assert registry.left_out("scalability", "cpu", envs=["MinAtar/Breakout-v1"]) == []
+    assert registry.left_out("rl", "cpu") == []
 
 
 @pytest.mark.parametrize(("kwargs", "match"), [
@@ -153,7 +154,7 @@ def test_command_resolves_run_references_and_resumes_from_a_checkpoint(tmp_path)
     config = {"key": "aaaaaaaaaaaa", "script": "rapl_a2c",
               "flags": {"env-id": "MinAtar/Breakout-v1", "demo": "@run:bbbbbbbbbbbb/demo.npz",
                         "record-demo": "@self/demo.npz", "extra-evals": ["train", "hard"]}}
-    words = sweep.command(config, tmp_path, python="py")
+    words = backends.command(config, tmp_path, python="py")
     assert words[2:] == ["--env-id", "MinAtar/Breakout-v1",
                          "--demo", str(tmp_path / "bbbbbbbbbbbb" / "demo.npz"),
                          "--record-demo", str(tmp_path / "aaaaaaaaaaaa" / "demo.npz"),
@@ -163,7 +164,7 @@ def test_command_resolves_run_references_and_resumes_from_a_checkpoint(tmp_path)
     run = tmp_path / "aaaaaaaaaaaa" / "MinAtar-Breakout-v1__rapl_a2c-rapl__1__1"
     run.mkdir(parents=True)
     (run / "checkpoint.pt").write_bytes(b"")
-    assert sweep.command(config, tmp_path, python="py")[2:] == ["--resume", str(run)]
+    assert backends.command(config, tmp_path, python="py")[2:] == ["--resume", str(run)]
 
 
 # -- sweeps of real runs ---------------------------------------------------------------------------
@@ -279,7 +280,7 @@ def test_a_snapshot_keeps_results_not_checkpoints_and_continues_as_a_sweep(local
     report_mod.write_report(out, reps=100)
     curves = (out / "report" / "fig3_curves.csv").read_text()
     assert (again / "report" / "fig3_curves.csv").read_text() == curves
-    assert curves.count("\n") == 1 + 5 * report_mod.CURVE_BINS  # every method has its curve
+    assert curves.count("\n") == 1 + 5 * training_curves.CURVE_BINS  # every method has its curve
     # Snapshotting a sweep that did not start from the snapshot would lose its results.
     proc = subprocess.run([sys.executable, str(snapshot), str(tmp_path / "fresh"), str(dest)],
                           capture_output=True, text=True, timeout=600)
@@ -428,7 +429,7 @@ def test_cli_list_shows_every_experiment_with_its_runs_per_budget():
 
 def test_a_sweep_of_some_seeds_lists_the_whole_experiment(tmp_path, monkeypatch):
     ran = []
-    monkeypatch.setattr(sweep, "_LocalBackend", lambda jobs: _NoRuns(ran))
+    monkeypatch.setattr(sweep, "LocalBackend", lambda jobs: _NoRuns(ran))
     sweep.run_experiment("rl", "cpu", tmp_path, seeds=[1], envs=["MinAtar/Breakout-v1"],
                          stream=io.StringIO())
     manifest = json.loads((tmp_path / "rl.json").read_text())

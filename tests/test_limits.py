@@ -30,10 +30,10 @@ from routine_gym.loading import load_routines
 from routine_gym.mining import (
     MAX_ROUTINE_LENGTH,
     PROPOSERS,
-    OccurrenceIndex,
     SequiturMiner,
     make_proposer,
 )
+from routine_gym.occurrences import OccurrenceIndex
 from routine_gym.run import check_args
 from routine_gym.sequitur import induce
 

@@ -18,13 +18,13 @@ from routine_gym.library import RoutineLibrary
 from routine_gym.mining import (
     PROPOSERS,
     EnumerationProposer,
-    OccurrenceIndex,
     RandomFetch,
     RandomRoutines,
     RepeatProposer,
     SequiturMiner,
     make_proposer,
 )
+from routine_gym.occurrences import OccurrenceIndex
 from routine_gym.sequitur import induce
 
 # -- brute-force references, written independently of the implementation ----------------------

@@ -14,7 +14,7 @@ import pytest
 import torch
 from script_loader import load_script
 
-from routine_gym.option_critic import (
+from routine_gym.baselines.option_critic import (
     choose_options,
     option_returns,
     termination_advantage,

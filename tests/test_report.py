@@ -16,7 +16,16 @@ import pytest
 import scipy.stats
 
 from routine_gym.errors import UsageError
-from routine_gym.experiments import report, sweep
+from routine_gym.experiments import (
+    backends,
+    drawing,
+    reference,
+    registry,
+    report,
+    statistics,
+    training_curves,
+)
+from routine_gym.experiments.paper import ablation
 from routine_gym.metrics import iqm
 
 BREAKOUT = "MinAtar/Breakout-v1"  # demo-normalised: random 0, demo 10
@@ -89,8 +98,8 @@ def _patch_references(monkeypatch: pytest.MonkeyPatch) -> list[str]:
         played.append(env_id)
         return {"mean": RANDOM[env_id]}
 
-    monkeypatch.setattr(report, "demo_score", DEMOS.get)
-    monkeypatch.setattr(report, "random_policy_scores", random_policy_scores)
+    monkeypatch.setattr(reference, "demo_score", DEMOS.get)
+    monkeypatch.setattr(reference, "random_policy_scores", random_policy_scores)
     return played
 
 
@@ -196,7 +205,7 @@ def test_report_md_counts_games_and_lists_missing_runs(full):
 
 
 def test_bin_curve_means_episodes_per_bin_and_carries_forward():
-    x, y = report.bin_curve([s for s, _ in CURVE_SEED_1], [v for _, v in CURVE_SEED_1],
+    x, y = training_curves.bin_curve([s for s, _ in CURVE_SEED_1], [v for _, v in CURVE_SEED_1],
                             total_steps=100)
     assert x[:5].tolist() == [2.0, 4.0, 6.0, 8.0, 10.0] and x[-1] == 100.0 and len(x) == 50
     # (0, 2] has no episode yet; (2, 4] holds 5 and 7; (8, 10] holds 2; then carried to 100.
@@ -210,7 +219,7 @@ def test_fig3_csv_has_mean_and_std_of_the_binned_curves(full):
     out, _, _ = full
     rows = {float(r["step"]): r for r in _rows(out / "report" / "fig3_curves.csv")
             if r["method"] == "A2C"}
-    assert len(rows) == report.CURVE_BINS
+    assert len(rows) == training_curves.CURVE_BINS
     # Step 2: only seed 2 has an episode (4). Step 4: seeds 6 and 4. Step 100: 10 and 8.
     assert (float(rows[2.0]["mean_return"]), rows[2.0]["runs"]) == (4.0, "1")
     assert float(rows[2.0]["std_return"]) == 0.0
@@ -221,11 +230,12 @@ def test_fig3_csv_has_mean_and_std_of_the_binned_curves(full):
 
 
 def test_curve_bins_sums_and_counts_each_bin_by_hand():
-    sums, counts = report.curve_bins([3, 4, 9, 12], [5.0, 7.0, 2.0, 1.0], total_steps=10, bins=5)
+    sums, counts = training_curves.curve_bins([3, 4, 9, 12], [5.0, 7.0, 2.0, 1.0],
+                                              total_steps=10, bins=5)
     # (2, 4] holds 5 and 7; (8, 10] holds 2 and the episode past the budget (1).
     assert sums.tolist() == [0.0, 12.0, 0.0, 0.0, 3.0]
     assert counts.tolist() == [0, 2, 0, 0, 2]
-    assert report.curve_values(sums, counts)[1:].tolist() == [6.0, 6.0, 6.0, 1.5]
+    assert training_curves.curve_values(sums, counts)[1:].tolist() == [6.0, 6.0, 6.0, 1.5]
 
 
 def test_fig3_from_the_curves_kept_in_result_json_without_tensorboard_logs(full, tmp_path):
@@ -241,7 +251,7 @@ def test_fig3_from_the_curves_kept_in_result_json_without_tensorboard_logs(full,
     for log in logs:
         result_path = log.parent.parent / "result.json"
         result = json.loads(result_path.read_text())
-        result["curve"] = sweep._curve(log.parent, STEPS)  # what the sweep keeps
+        result["curve"] = backends._curve(log.parent, STEPS)  # what the sweep keeps
         result_path.write_text(json.dumps(result))
         shutil.rmtree(log.parent)
     with pytest.MonkeyPatch.context() as monkeypatch:
@@ -259,7 +269,7 @@ def test_read_episodic_returns_drops_what_a_resumed_run_relogged(tmp_path):
         for step, value in points:
             writer.add_scalar("charts/episodic_return", value, step)
         writer.close()
-    steps, returns = report.read_episodic_returns(tmp_path)
+    steps, returns = training_curves.read_episodic_returns(tmp_path)
     assert steps.tolist() == [10, 20, 40] and returns.tolist() == [1.0, 5.0, 6.0]
 
 
@@ -271,8 +281,8 @@ def test_normalised_scores_and_iqm_by_hand(full):
     assert refs[ATARI]["normalisation"] == "human"
     assert (refs[ATARI]["random"], refs[ATARI]["reference"]) == (1.7, 30.5)
     assert refs[RAW]["normalisation"] == "raw"
-    assert report.Reference("demo", 1.0, 21.0).normalise(11.0) == 0.5
-    assert report.Reference("human", 1.7, 30.5, ATARI).normalise(30.5) == pytest.approx(1.0)
+    assert reference.Reference("demo", 1.0, 21.0).normalise(11.0) == 0.5
+    assert reference.Reference("human", 1.7, 30.5, ATARI).normalise(30.5) == pytest.approx(1.0)
 
     # Imitation: the normalised scores b and b + 0.02 on both normalised games (CartPole is
     # raw, out of the aggregate); IQM of {b, b, b + .02, b + .02} = b + 0.01.
@@ -291,21 +301,21 @@ def test_normalised_scores_and_iqm_by_hand(full):
 
 def test_iqm_point_is_the_trimmed_mean_inside_a_reproducible_ci():
     scores = np.random.default_rng(3).normal(size=(5, 4))
-    first = report.iqm_intervals({"m": scores}, reps=REPS, seed=7)["m"]
+    first = statistics.iqm_intervals({"m": scores}, reps=REPS, seed=7)["m"]
     point, lo, hi = first
     assert point == pytest.approx(scipy.stats.trim_mean(scores, 0.25, axis=None))
     assert point == pytest.approx(iqm(scores))
     assert lo <= point <= hi and lo < hi
     # The same seed gives the same interval, whatever else drew from NumPy's global RNG.
     np.random.default_rng().random()
-    assert report.iqm_intervals({"other": scores + 1, "m": scores}, reps=REPS, seed=7)["m"] \
+    assert statistics.iqm_intervals({"other": scores + 1, "m": scores}, reps=REPS, seed=7)["m"] \
         == first
 
 
 def test_probability_of_improvement_of_a_dominating_method_is_one(full):
     scores = np.random.default_rng(0).normal(size=(3, 4))
-    assert report.probability_of_improvement(scores + 10, scores, reps=REPS) == (1.0, 1.0, 1.0)
-    assert report.probability_of_improvement(scores, scores, reps=REPS)[0] == 0.5
+    assert statistics.probability_of_improvement(scores + 10, scores, reps=REPS) == (1.0, 1.0, 1.0)
+    assert statistics.probability_of_improvement(scores, scores, reps=REPS)[0] == 0.5
     out, _, _ = full
     text = (out / "report" / "report.md").read_text()
     for other in ("BC", "GAIL", "SQIL"):
@@ -319,7 +329,7 @@ def test_all_six_figures_are_valid_pngs_with_their_csvs(full):
 
     out, written, _ = full
     folder = out / "report"
-    for stem in [*report.FILES.values(), report.PROFILE_FILE]:
+    for stem in [s for e in registry.EXPERIMENTS.values() for s in e.files]:
         png = folder / f"{stem}.png"
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert png.stat().st_size > 10_000
@@ -359,7 +369,7 @@ def test_scalability_csv_is_relative_to_a2c_with_se_over_seeds(full):
 def test_ablation_csv_has_the_iqm_of_each_variant(full):
     out, _, _ = full
     rows = {r["variant"]: r for r in _rows(out / "report" / "fig6_ablation.csv")}
-    assert list(rows) == [*report.ABLATION_VARIANTS, "A2C"]
+    assert list(rows) == [*ablation.VARIANTS, "A2C"]
     for variant, value in ABLATION.items():
         assert float(rows[variant]["score_iqm"]) == pytest.approx(value + 0.01)
     assert float(rows["A2C"]["score_iqm"]) == pytest.approx(0.45)
@@ -385,7 +395,7 @@ def test_experiments_not_run_are_named_and_only_their_files_are_missing(tmp_path
     def refuse(*args):
         raise AssertionError("played the random policy again")
 
-    monkeypatch.setattr(report, "random_policy_scores", refuse)
+    monkeypatch.setattr(reference, "random_policy_scores", refuse)
     report.write_report(tmp_path, reps=REPS)
 
 
@@ -409,7 +419,7 @@ def test_importing_the_report_loads_no_heavy_library():
 def test_performance_profiles_count_the_runs_above_each_threshold():
     # 4 scores: 0.1, 0.3, 0.5, 0.9 → above 0: all; above 0.4: 0.5 and 0.9; above 1: none.
     scores = {"A": np.array([[0.1, 0.5], [0.3, 0.9]])}
-    profiles = report.performance_profiles(scores, np.array([0.0, 0.4, 1.0]), reps=50)
+    profiles = statistics.performance_profiles(scores, np.array([0.0, 0.4, 1.0]), reps=50)
     profile, lo, hi = profiles["A"]
     assert profile.tolist() == [1.0, 0.5, 0.0]
     assert np.all(lo <= profile + 1e-12) and np.all(profile <= hi + 1e-12)
@@ -418,8 +428,8 @@ def test_performance_profiles_count_the_runs_above_each_threshold():
 def test_each_method_and_ablation_variant_has_its_own_colour():
     # Fig. 6 is read beside Figs. 2-5: a variant drawn in a baseline's colour reads as that
     # baseline. Only Full is RAPL-A2C itself and shares its colour.
-    variants = {v: c for v, c in report.ABLATION_COLOURS.items() if v != "Full"}
-    assert set(report.ABLATION_COLOURS) == set(report.ABLATION_VARIANTS)
-    assert report.ABLATION_COLOURS["Full"] == report.COLOURS["RAPL-A2C"]
-    colours = list(report.COLOURS.values()) + list(variants.values())
+    variants = {v: c for v, c in ablation.VARIANT_COLOURS.items() if v != "Full"}
+    assert set(ablation.VARIANT_COLOURS) == set(ablation.VARIANTS)
+    assert ablation.VARIANT_COLOURS["Full"] == drawing.COLOURS["RAPL-A2C"]
+    colours = list(drawing.COLOURS.values()) + list(variants.values())
     assert len({c.lower() for c in colours}) == len(colours)

@@ -20,7 +20,17 @@ from pathlib import Path
 import pytest
 
 from routine_gym.errors import UsageError
-from routine_gym.experiments import read_json_object, report, specs, sweep
+from routine_gym.experiments import (
+    backends,
+    folder_lock,
+    read_json_object,
+    reference,
+    registry,
+    report,
+    results,
+    specs,
+    sweep,
+)
 from routine_gym.experiments.specs import RunSpec
 
 CLI = [sys.executable, "-m", "routine_gym.cli"]
@@ -116,7 +126,7 @@ def test_a_relative_out_trains_in_place_and_one_sweep_holds_the_folder_at_a_time
         assert not (folder / "sweeps").exists()  # nothing trained into a nested copy
         assert "no eval.json" not in (folder / "log.txt").read_text()
     assert lock.read_text() == ""  # released: it names no holder
-    assert sweep.lock_holder(out) is None
+    assert folder_lock.lock_holder(out) is None
 
     fourth = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert fourth.returncode == 0, fourth.stderr
@@ -126,7 +136,7 @@ def test_a_relative_out_trains_in_place_and_one_sweep_holds_the_folder_at_a_time
 def _hold(folder: Path) -> subprocess.Popen:
     """Another process holding the sweep folder (as a running sweep does)."""
     code = ("import sys, time\n"
-            "from routine_gym.experiments.sweep import sweep_lock\n"
+            "from routine_gym.experiments.folder_lock import sweep_lock\n"
             "with sweep_lock(sys.argv[1], command='a sweep in a test'):\n"
             "    print('held', flush=True)\n"
             "    time.sleep(600)\n")
@@ -167,7 +177,7 @@ def fake_runs(monkeypatch) -> tuple[list[specs.Entry], list[str]]:
     """The sweep's experiment is `_runs(3)` and its backend `_Backend`: (entries, submitted)."""
     entries, submitted = _runs(3), []
     monkeypatch.setattr(sweep, "build", lambda *a, **k: entries)
-    monkeypatch.setattr(sweep, "_LocalBackend", lambda jobs: _Backend(submitted))
+    monkeypatch.setattr(sweep, "LocalBackend", lambda jobs: _Backend(submitted))
     return entries, submitted
 
 
@@ -181,20 +191,20 @@ def test_a_held_folder_refuses_a_sweep_before_it_writes_and_frees_when_its_holde
         _one_line(exc, f"{tmp_path} is in use by another sweep (pid {holder.pid} on {HOST}, "
                        "started ", ": a sweep in a test)")
         assert not (tmp_path / "rl.json").exists() and not submitted
-        assert sweep.lock_holder(tmp_path).startswith(f"pid {holder.pid} on {HOST}")
+        assert folder_lock.lock_holder(tmp_path).startswith(f"pid {holder.pid} on {HOST}")
     finally:
         holder.kill()
         holder.wait()
     # Killed: its file still names it, but the kernel dropped its lock.
     assert json.loads((tmp_path / ".lock").read_text())["pid"] == holder.pid
-    assert sweep.lock_holder(tmp_path) is None  # its pid is gone
+    assert folder_lock.lock_holder(tmp_path) is None  # its pid is gone
     assert sweep.run_experiment("rl", "smoke", tmp_path, stream=io.StringIO()).ok
     assert len(submitted) == 3
     # Re-entrant in one process (`experiment run all` holds it across experiments).
-    with sweep.sweep_lock(tmp_path) as held:
+    with folder_lock.sweep_lock(tmp_path) as held:
         assert held == tmp_path
         assert sweep.run_experiment("rl", "smoke", tmp_path, stream=io.StringIO()).ok
-        assert sweep.lock_holder(tmp_path).startswith(f"pid {os.getpid()} on {HOST}")
+        assert folder_lock.lock_holder(tmp_path).startswith(f"pid {os.getpid()} on {HOST}")
     assert (tmp_path / ".lock").read_text() == ""
 
 
@@ -268,8 +278,8 @@ def test_execute_run_never_writes_a_result_the_next_sweep_calls_corrupt(tmp_path
         runs = tmp_path / "runs"
         (runs / "aaaaaaaaaaaa").mkdir(parents=True, exist_ok=True)
         with pytest.MonkeyPatch.context() as mp:
-            mp.setattr(sweep, "script_path", lambda name: tmp_path / f"{name}.py")
-            outcome = sweep.execute_run(config, str(runs))
+            mp.setattr(backends, "script_path", lambda name: tmp_path / f"{name}.py")
+            outcome = backends.execute_run(config, str(runs))
         assert why in outcome["error"], outcome
         assert not (runs / "aaaaaaaaaaaa" / "result.json").exists()
 
@@ -298,8 +308,8 @@ def _sweep_folder(out: Path, scores: dict[tuple[str, int], float], experiment: s
 @pytest.fixture
 def references(monkeypatch):
     """Breakout is demo-normalised with demo 10 and random 0; nothing is played."""
-    monkeypatch.setattr(report, "demo_score", {BREAKOUT: 10.0}.get)
-    monkeypatch.setattr(report, "random_policy_scores", lambda *a: {"mean": 0.0})
+    monkeypatch.setattr(reference, "demo_score", {BREAKOUT: 10.0}.get)
+    monkeypatch.setattr(reference, "random_policy_scores", lambda *a: {"mean": 0.0})
 
 
 RL = {("A2C", 1): 4.0, ("A2C", 2): 6.0, ("RAPL-A2C", 1): 6.0, ("RAPL-A2C", 2): 8.0}
@@ -322,7 +332,7 @@ def test_report_names_a_result_json_of_the_wrong_shape(tmp_path, label, bad, why
     path = tmp_path / "runs" / keys["A2C", 1] / "result.json"
     path.write_bytes(_shape(bad))
     with pytest.raises(UsageError) as exc:
-        report.load_runs(tmp_path, "rl")
+        results.load_runs(tmp_path, "rl")
     _one_line(exc, f"{path}: ", why)
 
 
@@ -534,7 +544,7 @@ def test_cli_all_runs_the_experiments_that_have_the_games_asked_for(tmp_path):
         "imitation", "rl", "curves", "scalability", "ablation"]
     assert sweep.plan("all", "cpu", envs=["procgen/CoinRun-v0"]) == [
         ("coinrun", ["procgen/CoinRun-v0"])]
-    assert [n for n, e in sweep.plan("all", "cpu")] == list(specs.EXPERIMENTS)
+    assert [n for n, e in sweep.plan("all", "cpu")] == list(registry.EXPERIMENTS)
     proc = _cli(["run", "all", "--budget", "smoke", "--out", "X", "--envs", "Pong"], tmp_path)
     _one_line_error(proc, "--envs Pong is not a game of any experiment at the smoke budget "
                           "(their games: MinAtar/Breakout-v1, MinAtar/Freeway-v1, MiniQbert-v0, "

@@ -2,9 +2,11 @@
 
 One module per idea; every public name is importable from `routine_gym.demo` itself.
 
-- `routine_gym.demo.format`: the demonstration and its file: `Demo`, `DemoEpisode`, which steps
-  are decisions and which are injected, the `.npz` format (versions 1 and 2) with its save and
-  load, and `demo_file_version`.
+- `routine_gym.demo.format`: the demonstration: `Demo`, `DemoEpisode`, which steps are
+  decisions and which are injected, and its save and load.
+- `routine_gym.demo.npz`: its file: the `.npz` format (versions 1 and 2, `DEMO_FORMAT`,
+  `DEMO_VERSION`, `READABLE_VERSIONS`), the size limits a file must keep to (`MAX_*`), the
+  checks it passes before it is read, and `demo_file_version`.
 - `routine_gym.demo.recorder`: `DemoRecorder`, which records the raw env's steps as a `Demo`,
   and `DecisionMarker`, which tells it which steps the demonstrator decided.
 - `routine_gym.demo.replay`: `replay`, which re-runs a demo from its seeds and verifies it
@@ -17,14 +19,8 @@ One module per idea; every public name is importable from `routine_gym.demo` its
 """
 
 from routine_gym.demo.collect import record_agent_demo, record_human_demo
-from routine_gym.demo.format import (
-    DEMO_FORMAT,
-    DEMO_VERSION,
-    READABLE_VERSIONS,
-    Demo,
-    DemoEpisode,
-    demo_file_version,
-)
+from routine_gym.demo.format import Demo, DemoEpisode
+from routine_gym.demo.npz import DEMO_FORMAT, DEMO_VERSION, READABLE_VERSIONS, demo_file_version
 from routine_gym.demo.recorder import DecisionMarker, DemoRecorder
 from routine_gym.demo.replay import DemoReplayError, ReplayResult, replay, upgrade_demo
 from routine_gym.demo.suite import DEMO_SUITE, DEMOS_DIR, demo_filename, shipped_demo_path

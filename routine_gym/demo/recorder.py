@@ -20,7 +20,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from routine_gym.demo.format import Demo, _to_json
+from routine_gym.demo.format import Demo
+from routine_gym.demo.npz import _to_json
 
 # Seeds drawn for an unseeded reset stay below 2**31 so that every env accepts them.
 _MAX_DRAWN_SEED = 2**31 - 1

@@ -155,19 +155,6 @@ class MinAtarProfile(EnvProfile):
             space,
         )
 
-    def torso(self, obs_shape: tuple[int, ...]):
-        """MinAtar's network (Young & Tian 2019): one 3×3 convolution of 16 channels, stride 1,
-        then a 128-unit layer, on the (C, 10, 10) observation."""
-        import torch.nn as nn
-
-        from routine_gym.networks import layer_init
-
-        c, h, w = obs_shape
-        return nn.Sequential(
-            layer_init(nn.Conv2d(c, 16, 3, stride=1)), nn.ReLU(), nn.Flatten(),
-            layer_init(nn.Linear(16 * (h - 2) * (w - 2), 128)), nn.ReLU(),
-        ), 128
-
     def play_fps(self, env: gym.Env) -> int | None:
         return 10
 

@@ -28,8 +28,9 @@ class EnvProfile:
         family: the family's name (`"atari"`, `"procgen"`, `"miniqbert"`, `"generic"`, ...).
         frame_stack: frames per observation of the agent's view (Atari: 4; others: 1).
         network: the torso `routine_gym.networks.make_torso` builds: `"nature_cnn"`,
-            `"impala_cnn"` or `"default"` (MLP for flat observations, a small CNN for images),
-            unless `torso` builds one of the family's own.
+            `"impala_cnn"`, `"minatar"` or `"default"` (MLP for flat observations, a small CNN
+            for images). A name, not a module: the networks depend on the profiles, never the
+            reverse, so `routine_gym.envs` imports no torch.
         has_levels: the env is trained on some levels and evaluated on others (Procgen).
     """
 
@@ -71,11 +72,6 @@ class EnvProfile:
             "agent": lambda env: self.preprocess(env, env_id, training=False),
             "raw": lambda env: env,
         }
-
-    def torso(self, obs_shape: tuple[int, ...]) -> tuple[Any, int] | None:
-        """A feature extractor of the family's own for observations of `obs_shape` and its
-        output size, or None for the one `network` names (`routine_gym.networks.make_torso`)."""
-        return None
 
     def score_key(self, env_id: str) -> str | None:
         """The game's key in the human-normalised score table, or None (no such score)."""

@@ -1,20 +1,23 @@
-"""The paper's six experiments (SPEC §8).
+"""The paper's six experiments (SPEC §8): one `Experiment` per file in `paper/`, listed in
+`registry.py`; `sweep.py` runs them and `report.py` writes their figures.
 
-`read_json_object` is how every file of a sweep folder is read (manifests, `config.json`,
-`result.json`, the report's random-policy cache, a snapshot's provenance): a file that is
-missing, unreadable, not JSON, nested too deeply or not a JSON object is a one-line
-`UsageError` naming the file and the problem, never a traceback.
+This module holds what every module here needs. `read_json_object` is how every file of a
+sweep folder is read (manifests, `config.json`, `result.json`, the report's random-policy
+cache, a snapshot's provenance): a file that is missing, unreadable, not JSON, nested too
+deeply or not a JSON object is a one-line `UsageError` naming the file and the problem, never a
+traceback.
 """
 
 from __future__ import annotations
 
 import json
 import os
+from datetime import UTC, datetime
 from typing import Any
 
-from routine_gym.errors import UsageError
+from routine_gym.errors import UsageError, one_line
 
-__all__ = ["JSON_KINDS", "json_kind", "read_json_object"]
+__all__ = ["JSON_KINDS", "json_kind", "os_problem", "read_json_object", "utc_now"]
 
 #: How a JSON value's type reads in a message.
 JSON_KINDS = {list: "a list", str: "a string", int: "a number", float: "a number",
@@ -62,3 +65,13 @@ def read_json_object(path: str | os.PathLike, hint: str = "") -> dict[str, Any]:
     if not isinstance(value, dict):
         raise UsageError(f"{path}: holds {json_kind(value)}, not a JSON object{more}")
     return value
+
+
+def utc_now() -> str:
+    """The time now in UTC, `2026-12-02T10:00:00Z`: how a sweep folder's files stamp times."""
+    return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def os_problem(exc: OSError) -> str:
+    """What an `OSError` says, in a few words (`Permission denied`)."""
+    return exc.strerror or one_line(exc)

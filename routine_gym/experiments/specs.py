@@ -1,6 +1,7 @@
-"""The paper's six experiments as named, versioned specs with three budgets (SPEC §6, §8).
+"""The runs of an experiment and the three budgets they are sized by (SPEC §6, §8).
 
-An experiment is a list of runs. A run is one process of a script in `algos/` with its flags
+An experiment (`routine_gym.experiments.experiment.Experiment`) adds its runs to a `Builder` at a
+budget. A run is one process of a script in `algos/` with its flags
 (`RunSpec`); its key is a hash of the script and the flags, so the same run in two experiments
 (A2C on Breakout is in `rl`, `curves` and `scalability`) is one run, trained once. Each entry of
 an experiment adds the labels the report groups by (method, env, seed, variant).
@@ -26,21 +27,22 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 __all__ = [
     "BUDGETS",
-    "EXPERIMENTS",
+    "COINRUN",
+    "MINATAR",
+    "PAPER_GAMES",
     "Budget",
+    "Builder",
     "Entry",
-    "Experiment",
     "RunSpec",
-    "build",
-    "count_runs",
-    "games",
-    "left_out",
+    "expert",
+    "has_shipped_demo",
+    "shipped_demo_has_routine",
 ]
 
 MINATAR = tuple(f"MinAtar/{game}-v1" for game in
@@ -155,14 +157,15 @@ BUDGETS: dict[str, Budget] = {
 }
 
 
-def _has_shipped_demo(env_id: str) -> bool:
+def has_shipped_demo(env_id: str) -> bool:
+    """Whether `env_id`'s demo ships with routine-gym (no expert needs training for it)."""
     from routine_gym.demo import DEMO_SUITE
 
     return env_id in DEMO_SUITE or env_id in BUILT_IN_DEMOS
 
 
 @functools.cache
-def _shipped_demo_has_routine(env_id: str, min_length: int) -> bool:
+def shipped_demo_has_routine(env_id: str, min_length: int) -> bool:
     """Whether the miner finds a routine of ≥ `min_length` actions in `env_id`'s shipped demo
     (true for a game without one: its expert's demo is recorded by the sweep, and a run that
     finds none fails naming the reason)."""
@@ -170,7 +173,7 @@ def _shipped_demo_has_routine(env_id: str, min_length: int) -> bool:
 
     from routine_gym.loading import load_demo, load_routines
 
-    if not _has_shipped_demo(env_id):
+    if not has_shipped_demo(env_id):
         return True
     demo, path = load_demo(env_id, None, purpose="the scalability experiment")
     with warnings.catch_warnings():
@@ -204,8 +207,9 @@ def expert(budget: Budget, env_id: str, steps: int) -> Entry:
                  {"expert_steps": steps}, role="expert")
 
 
-class _Builder:
-    """Collects an experiment's entries; the experts behind demos are added once each."""
+class Builder:
+    """Collects an experiment's entries at a budget; the experts behind demos are added once
+    each. An experiment's `add_runs` calls `run` (any script) or `a2c` (`rapl_a2c.py`)."""
 
     def __init__(self, budget: Budget) -> None:
         self.budget = budget
@@ -221,7 +225,7 @@ class _Builder:
     def demo(self, env_id: str, expert_steps: int | None = None) -> tuple[list, tuple[str, ...]]:
         """The `--demo` flag and the needed run for `env_id`: none for a shipped demo (the
         scripts' default), else an expert trained for `expert_steps` (the budget's)."""
-        if expert_steps is None and _has_shipped_demo(env_id):
+        if expert_steps is None and has_shipped_demo(env_id):
             return [], ()
         steps = expert_steps if expert_steps is not None else self.budget.expert_steps
         run = self.add(expert(self.budget, env_id, steps)).run
@@ -259,178 +263,3 @@ class _Builder:
 
     def seeds(self) -> range:
         return range(1, self.budget.seeds + 1)
-
-
-def _imitation(b: _Builder) -> None:
-    budget = b.budget
-    for env_id in budget.imitation_games:
-        for seed in b.seeds():
-            b.run("bc", "BC", env_id, seed, budget.bc_steps)
-            b.run("gail", "GAIL", env_id, seed, budget.gail_steps)
-            b.run("rapl_sqil", "SQIL", env_id, seed, budget.sqil_steps, [("num-routines", 0)])
-            b.run("rapl_sqil", "RAPL-SQIL", env_id, seed, budget.sqil_steps)
-
-
-def _rl(b: _Builder) -> None:
-    for env_id in b.budget.rl_games:
-        for seed in b.seeds():
-            b.a2c("A2C", env_id, seed)
-            b.a2c("RAPL-A2C", env_id, seed)
-
-
-def _curves(b: _Builder) -> None:
-    budget = b.budget
-    for env_id in budget.games:
-        for seed in b.seeds():
-            b.a2c("A2C", env_id, seed)
-            b.a2c("MacroAction", env_id, seed)
-            b.run("option_critic", "OptionCritic", env_id, seed, budget.steps, demo=False)
-            b.run("compile_a2c", "CompILE", env_id, seed, budget.steps, budget.compile_flags)
-            b.a2c("RAPL-A2C", env_id, seed)
-
-
-def _coinrun(b: _Builder) -> None:
-    extra = [("extra-evals", ("train", "hard"))]
-    for seed in b.seeds():
-        for method in ("A2C", "RAPL-A2C"):
-            b.a2c(method, COINRUN, seed, steps=b.budget.coinrun_steps, extra=extra)
-
-
-def _scalability(b: _Builder) -> None:
-    budget = b.budget
-    settings = [(k, 2) for k in budget.scalability_k]
-    settings += [(3, length) for length in budget.scalability_lengths if length != 2]
-    for env_id in budget.games:
-        # A minimum length the game's shipped demo has no routine of: no runs, a manifest note.
-        usable = []
-        for k, length in settings:
-            if length == 2 or _shipped_demo_has_routine(env_id, length):
-                usable.append((k, length))
-            else:
-                b.left_out.append({
-                    "env_id": env_id, "variant": {"K": k, "min_length": length},
-                    "why": f"its shipped demo has no routine of ≥ {length} actions"})
-        for seed in b.seeds():
-            b.a2c("A2C", env_id, seed)
-            for k, length in usable:
-                for method in ("RAPL-A2C", "MacroAction"):
-                    b.a2c(method, env_id, seed, {"K": k, "min_length": length}, k=k,
-                          min_length=length)
-
-
-#: The discovery ablations of the paper and the proposer each one is.
-ABLATIONS = {"Full": "full", "RR": "random", "PbE": "enumerate", "RF": "random-fetch",
-             "RP": "repeat"}
-
-
-def _ablation(b: _Builder) -> None:
-    budget = b.budget
-    games = budget.games if budget.ablation_games is None else budget.ablation_games
-    for env_id in games:
-        full_steps = budget.shipped_expert_steps if _has_shipped_demo(env_id) else (
-            budget.expert_steps)
-        for seed in b.seeds():
-            b.a2c("A2C", env_id, seed)
-            for name, proposer in ABLATIONS.items():
-                b.a2c("RAPL-A2C", env_id, seed, {"discovery": name}, proposer=proposer)
-            b.a2c("RAPL-A2C", env_id, seed, {"discovery": "ID"},
-                  expert_steps=max(full_steps // 10, 1))
-
-
-@dataclass(frozen=True)
-class Experiment:
-    name: str
-    version: int
-    title: str
-    figure: str
-    builder: Callable[[_Builder], None]
-
-
-EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
-    Experiment("imitation", 1, "Imitation: BC, GAIL, SQIL, RAPL-SQIL (alignment and score)",
-               "Table 1", _imitation),
-    Experiment("rl", 1, "RL: relative performance of RAPL-A2C over A2C per game", "Fig. 2",
-               _rl),
-    Experiment("curves", 1,
-               "Training curves: A2C, MacroAction, OptionCritic, CompILE, RAPL-A2C", "Fig. 3",
-               _curves),
-    Experiment("coinrun", 1, "CoinRun generalisation: train, unseen easy and hard levels",
-               "Fig. 4", _coinrun),
-    Experiment("scalability", 1,
-               "Scalability: more (K) and longer routines, RAPL-A2C against MacroAction",
-               "Fig. 5", _scalability),
-    Experiment("ablation", 1, "Discovery ablations: Full, RR, PbE, RF, ID, RP", "Fig. 6",
-               _ablation),
-)}
-
-
-def build(name: str, budget: str, seeds: Sequence[int] | None = None,
-          envs: Sequence[str] | None = None) -> list[Entry]:
-    """The entries of experiment `name` at `budget`, optionally only some seeds and envs
-    (`envs` filters the games of every part; CoinRun's experiment has one game).
-
-    Raises:
-        UsageError: an unknown experiment or budget, a seed outside the budget's, or an env
-            that is not one of the experiment's games at that budget (`games`).
-    """
-    return _build(name, budget, seeds, envs)[0]
-
-
-def left_out(name: str, budget: str, envs: Sequence[str] | None = None
-             ) -> list[dict[str, Any]]:
-    """The settings of experiment `name` at `budget` that have no runs, each with its env,
-    variant and why (the scalability experiment's minimum lengths a shipped demo has no
-    routine of)."""
-    return _build(name, budget, None, envs)[1]
-
-
-def _build(name: str, budget: str, seeds: Sequence[int] | None,
-           envs: Sequence[str] | None) -> tuple[list[Entry], list[dict[str, Any]]]:
-    from dataclasses import replace
-
-    from routine_gym.errors import UsageError
-
-    if name not in EXPERIMENTS:
-        raise UsageError(f"unknown experiment {name!r}; choose from {', '.join(EXPERIMENTS)}")
-    if budget not in BUDGETS:
-        raise UsageError(f"unknown budget {budget!r}; choose from {', '.join(BUDGETS)}")
-    sizes = BUDGETS[budget]
-    if envs:
-        known = games(name, budget)
-        unknown = [e for e in envs if e not in known]
-        if unknown:
-            raise UsageError(f"--envs {unknown[0]} is not a game of the {name} experiment at "
-                             f"the {budget} budget (its games: {', '.join(known)})")
-        keep = set(envs)
-        sizes = replace(sizes, games=tuple(g for g in sizes.games if g in keep),
-                        rl_games=tuple(g for g in sizes.rl_games if g in keep),
-                        imitation_games=tuple(g for g in sizes.imitation_games if g in keep),
-                        ablation_games=None if sizes.ablation_games is None else tuple(
-                            g for g in sizes.ablation_games if g in keep))
-    builder = _Builder(sizes)
-    EXPERIMENTS[name].builder(builder)
-    entries = list(builder.entries.values())
-    if seeds:
-        bad = [s for s in seeds if not 1 <= s <= sizes.seeds]
-        if bad:
-            raise UsageError(f"--seeds {bad[0]} is outside the {budget} budget's seeds "
-                             f"1..{sizes.seeds}")
-        entries = [e for e in entries if e.role != "main" or e.seed in set(seeds)]
-    return entries, builder.left_out
-
-
-@functools.cache
-def games(name: str, budget: str) -> tuple[str, ...]:
-    """The games experiment `name` has at `budget` (what `--envs` may name), sorted.
-
-    Raises:
-        UsageError: an unknown experiment or budget.
-    """
-    return tuple(sorted({e.env_id for e in build(name, budget) if e.role == "main"}))
-
-
-def count_runs(name: str, budget: str) -> tuple[int, int]:
-    """(runs, agent steps) of experiment `name` at `budget`, experts included."""
-    entries = build(name, budget)
-    runs = {e.run.key: e.run.steps for e in entries}
-    return len(runs), sum(runs.values())

@@ -15,44 +15,33 @@ Folder layout of `--out OUT`:
                                      names that sweep: pid, host, start, command
 
 A run is finished when its `result.json` parses and has the shape the report reads
-(`report.result_problem`); a corrupt one (truncated, empty, not JSON, the wrong shape) is moved
+(`results.result_problem`); a corrupt one (truncated, empty, not JSON, the wrong shape) is moved
 aside to `result.json.corrupt-{time}`, with a note on the progress stream, and the run runs
 again. A run with a `checkpoint.pt` resumes from it (`--resume`), so the same command continues
 a sweep after a crash, a kill or a lost session, losing at most one checkpoint interval per run.
 A run that fails is reported with the last line of its log and does not stop the others (the
 runs that need it are not started).
 
-One sweep writes a folder at a time: it holds an exclusive `flock` on `OUT/.lock` from before
-it writes anything to its end, and a second sweep on the folder is refused at once, naming the
-holder. The kernel drops the lock when the holder's process dies, however it dies (a SIGKILL
-too), so the file a killed sweep leaves behind never blocks the next one. `report` takes no
-lock: it only reads, so it may run while a sweep runs (it shows the runs finished so far).
+One sweep writes a folder at a time: it holds the folder's lock throughout (`folder_lock`).
 
 OUT is made absolute once, so every path on a run's command line is absolute: a run's process
 works in its own folder, and a relative `--out` would otherwise name a folder inside it.
 
-Backends: `local`, a pool of `--jobs` processes on this machine, and `ray`, one Ray task per run
-asking for its CPUs (and a GPU with `--cuda`); `--address HOST:PORT` joins an existing cluster,
-whose nodes must see OUT at the same path (a shared filesystem), and without it a local Ray
-instance of `--jobs` CPUs is started and stopped.
+Backends (`backends`): `local`, a pool of `--jobs` processes on this machine, and `ray`, one Ray
+task per run asking for its CPUs (and a GPU with `--cuda`); `--address HOST:PORT` joins an
+existing cluster, whose nodes must see OUT at the same path (a shared filesystem), and without
+it a local Ray instance of `--jobs` CPUs is started and stopped.
 """
 
 from __future__ import annotations
 
-import contextlib
-import ctypes
-import fcntl
 import json
 import os
 import re
-import shlex
-import signal
 import socket
-import subprocess
 import sys
-import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -60,238 +49,17 @@ from typing import Any
 
 from routine_gym.atomic import atomic_write_text
 from routine_gym.errors import UsageError, one_line
-from routine_gym.experiments import read_json_object
-from routine_gym.experiments.specs import (
-    BUDGETS,
-    EXPERIMENTS,
-    Entry,
-    RunSpec,
-    build,
-    games,
-    left_out,
-)
+from routine_gym.experiments import os_problem, read_json_object, utc_now
+from routine_gym.experiments.backends import LocalBackend, RayBackend, file_tail
+from routine_gym.experiments.folder_lock import sweep_lock
+from routine_gym.experiments.registry import EXPERIMENTS, build, games, left_out
+from routine_gym.experiments.results import result_problem
+from routine_gym.experiments.specs import BUDGETS, Entry, RunSpec
 
-__all__ = ["SweepSummary", "check_options", "execute_run", "lock_holder", "plan",
-           "run_experiment", "script_path", "sweep_folder", "sweep_lock"]
+__all__ = ["CONNECT_TIMEOUT", "SweepSummary", "check_options", "check_ray_address", "plan",
+           "run_experiment"]
 
-REPO = Path(__file__).resolve().parents[2]
 _STEP_LINE = re.compile(rb"step\s+([\d,]+)/")
-
-
-def script_path(script: str) -> Path:
-    """`algos/{script}.py` of this checkout, or of the installed package."""
-    for folder in (REPO / "algos", Path(__file__).resolve().parents[1] / "algos"):
-        path = folder / f"{script}.py"
-        if path.is_file():
-            return path
-    raise UsageError(f"cannot find the script {script}.py (looked in {REPO / 'algos'})")
-
-
-def _now() -> str:
-    return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
-
-
-def _resolve(value: Any, runs: Path, key: str) -> list[str]:
-    """A flag value as command-line words, with `@self/` and `@run:KEY/` made paths."""
-    if isinstance(value, list | tuple):
-        return [w for v in value for w in _resolve(v, runs, key)]
-    if isinstance(value, bool):
-        return ["True" if value else "False"]
-    text = str(value)
-    if text.startswith("@self/"):
-        return [str(runs / key / text[len("@self/"):])]
-    if text.startswith("@run:"):
-        other, _, rest = text[len("@run:"):].partition("/")
-        return [str(runs / other / rest)]
-    return [text]
-
-
-def command(config: dict[str, Any], runs: Path, cuda: bool = False,
-            python: str | None = None) -> list[str]:
-    """The command line of a run: resume from its newest checkpoint, or start it."""
-    key = config["key"]
-    folder = runs / key
-    python = python or sys.executable
-    script = str(script_path(config["script"]))
-    checkpoints = sorted(folder.glob("*/checkpoint.pt"), key=lambda p: p.stat().st_mtime)
-    if checkpoints:
-        return [python, script, "--resume", str(checkpoints[-1].parent)]
-    words = [python, script]
-    for flag, value in config["flags"].items():
-        words += [f"--{flag}", *_resolve(value, runs, key)]
-    words += ["--run-dir", str(folder), "--torch-threads", "1"]
-    if cuda:
-        words.append("--cuda")
-    return words
-
-
-def _die_with_parent() -> None:
-    """In the child: be killed when the process that started it dies (Linux), so a killed
-    sweep leaves no orphan run writing into its folder."""
-    with contextlib.suppress(Exception):
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    os.setpgrp()
-
-
-_CHILDREN: set[subprocess.Popen] = set()
-_CHILDREN_LOCK = threading.Lock()
-
-
-def _tail(path: Path, size: int) -> bytes | None:
-    """The last `size` bytes of a file, None when it cannot be read."""
-    try:
-        with open(path, "rb") as fh:
-            fh.seek(max(0, fh.seek(0, os.SEEK_END) - size))
-            return fh.read()
-    except OSError:
-        return None
-
-
-def _last_line(path: Path) -> str:
-    tail = _tail(path, 4096)
-    if tail is None:
-        return "(no log)"
-    lines = [ln.strip() for ln in tail.decode(errors="replace").splitlines() if ln.strip()]
-    return lines[-1] if lines else "(no output)"
-
-
-def _curve(run_dir: Path, total_steps: int) -> dict[str, Any] | None:
-    """The run's training episodes binned as the report bins them (`report.curve_bins`), so a
-    snapshot of `result.json`s draws Fig. 3 without the TensorBoard logs; None without a
-    budget."""
-    from routine_gym.experiments.report import CURVE_BINS, curve_bins, read_episodic_returns
-
-    if total_steps <= 0:
-        return None
-    steps, returns = read_episodic_returns(run_dir)
-    sums, counts = curve_bins(steps, returns, total_steps)
-    return {"total_steps": total_steps, "bins": CURVE_BINS,
-            "sums": [round(float(v), 6) for v in sums], "counts": counts.tolist()}
-
-
-def execute_run(config: dict[str, Any], runs_dir: str, cuda: bool = False) -> dict[str, Any]:
-    """Run (or resume) one run to the end and write its `result.json`; returns the result, or
-    `{"key", "error"}` with the last line of its log. Used by both backends (a Ray task runs it
-    on whichever node it lands)."""
-    # Absolute: the run's process works in its own folder (a Ray task on whichever node).
-    runs = Path(os.path.abspath(runs_dir))
-    folder = runs / config["key"]
-    log = folder / "log.txt"
-    words = command(config, runs, cuda=cuda)
-    start = time.time()
-    with open(log, "ab") as out:
-        out.write(f"# {_now()} {shlex.join(words)}\n".encode())
-        out.flush()
-        proc = subprocess.Popen(words, stdout=out, stderr=subprocess.STDOUT,
-                                stdin=subprocess.DEVNULL, cwd=str(folder),
-                                preexec_fn=_die_with_parent)
-        with _CHILDREN_LOCK:
-            _CHILDREN.add(proc)
-        try:
-            code = proc.wait()
-        finally:
-            with _CHILDREN_LOCK:
-                _CHILDREN.discard(proc)
-    evals = sorted(folder.glob("*/eval.json"), key=lambda p: p.stat().st_mtime)
-    if code != 0 or not evals:
-        why = f"exit code {code}" if code != 0 else "no eval.json"
-        return {"key": config["key"], "error": f"{why}: {_last_line(log)}"}
-    from routine_gym.experiments.report import result_problem
-
-    run_dir = evals[-1].parent
-    try:
-        extra = {p.stem[len("eval-"):]: read_json_object(p)
-                 for p in sorted(run_dir.glob("eval-*.json"))}
-        result = {"key": config["key"], "run_dir": run_dir.name,
-                  "eval": read_json_object(evals[-1]), "evals": extra,
-                  "curve": _curve(run_dir, int(config.get("steps") or 0)),
-                  "seconds": time.time() - start, "finished": _now()}
-    except UsageError as exc:
-        return {"key": config["key"], "error": one_line(exc)}
-    problem = result_problem(result, config["key"])
-    if problem:  # never a result.json that the next sweep would call corrupt
-        return {"key": config["key"], "error": f"its evaluation in {run_dir}: {problem}"}
-    atomic_write_text(folder / "result.json", json.dumps(result, indent=2) + "\n")
-    return result
-
-
-def _kill_children() -> None:
-    with _CHILDREN_LOCK:
-        for proc in list(_CHILDREN):
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(proc.pid, signal.SIGTERM)
-
-
-# -- backends -----------------------------------------------------------------------------------
-
-class _LocalBackend:
-    """A pool of `jobs` threads, each waiting on one run's process."""
-
-    def __init__(self, jobs: int) -> None:
-        from concurrent.futures import ThreadPoolExecutor
-
-        self.pool = ThreadPoolExecutor(max_workers=jobs)
-
-    def submit(self, config: dict, runs: Path, cuda: bool) -> Any:
-        return self.pool.submit(execute_run, config, str(runs), cuda)
-
-    def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, dict]]:
-        from concurrent.futures import FIRST_COMPLETED, wait
-
-        done, _ = wait(handles, timeout=timeout, return_when=FIRST_COMPLETED)
-        return [(h, _outcome(h.result)) for h in done]
-
-    def close(self) -> None:
-        _kill_children()
-        self.pool.shutdown(wait=True, cancel_futures=True)
-
-
-class _RayBackend:
-    """One Ray task per run, asking for `cpus` CPUs (and a GPU with `--cuda`)."""
-
-    def __init__(self, jobs: int, address: str | None, cpus: int, cuda: bool) -> None:
-        try:
-            import ray
-        except ImportError:
-            raise UsageError("--backend ray needs Ray: pip install 'routine-gym[ray]'") from None
-        self.ray = ray
-        self.started = not ray.is_initialized()
-        if self.started:
-            os.environ.setdefault("RAY_AUTH_MODE", "disabled")
-            kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False,
-                                      "configure_logging": False}
-            try:
-                if address:
-                    ray.init(address=address, **kwargs)
-                else:
-                    ray.init(num_cpus=jobs * cpus, num_gpus=1 if cuda else 0, **kwargs)
-            except Exception as err:  # noqa: BLE001 - Ray raises many kinds; one line here
-                where = f"the Ray cluster at {address}" if address else "a local Ray instance"
-                raise UsageError(f"cannot start or join {where}: "
-                                 f"{str(err).strip().splitlines()[0]}") from None
-        if self.started and _HANDLING_SIGTERM and (
-                threading.current_thread() is threading.main_thread()):
-            signal.signal(signal.SIGTERM, _sigterm)  # Ray's own handler would just exit
-        self.task = ray.remote(num_cpus=cpus, num_gpus=1 if cuda else 0,
-                               max_retries=0)(execute_run)
-
-    def submit(self, config: dict, runs: Path, cuda: bool) -> Any:
-        return self.task.remote(config, str(runs), cuda)
-
-    def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, dict]]:
-        done, _ = self.ray.wait(list(handles), num_returns=1, timeout=timeout)
-        return [(h, _outcome(lambda h=h: self.ray.get(h))) for h in done]
-
-    def close(self) -> None:
-        if self.started:
-            self.ray.shutdown()
-
-
-def _outcome(get: Callable[[], dict]) -> dict:
-    try:
-        return get()
-    except Exception as err:  # noqa: BLE001 - a run's crash is reported, not raised
-        return {"error": f"{type(err).__name__}: {str(err).strip().splitlines()[-1:]}"}
 
 
 # -- the sweep ----------------------------------------------------------------------------------
@@ -337,7 +105,7 @@ def _write_manifest(out: Path, name: str, budget: str, entries: Sequence[Entry])
     rows = keep | {json.dumps(e.manifest(), sort_keys=True) for e in entries}
     manifest = {"experiment": name, "version": experiment.version, "budget": budget,
                 "title": experiment.title, "figure": experiment.figure,
-                "description": BUDGETS[budget].description, "updated": _now(),
+                "description": BUDGETS[budget].description, "updated": utc_now(),
                 "left_out": left_out(name, budget),
                 "runs": sorted((json.loads(r) for r in rows),
                                key=lambda r: (r["role"] != "expert", r["env_id"], r["method"],
@@ -347,7 +115,7 @@ def _write_manifest(out: Path, name: str, budget: str, entries: Sequence[Entry])
 
 def _steps_done(runs: Path, key: str) -> int:
     """The last `step N/` a run printed (0 before its first progress line)."""
-    found = _STEP_LINE.findall(_tail(runs / key / "log.txt", 8192) or b"")
+    found = _STEP_LINE.findall(file_tail(runs / key / "log.txt", 8192) or b"")
     return int(found[-1].replace(b",", b"")) if found else 0
 
 
@@ -400,149 +168,11 @@ class _Progress:
         self.stream.flush()
 
 
-# -- the sweep folder and its lock ---------------------------------------------------------------
+# -- checks before a sweep touches anything --------------------------------------------------------
 
-LOCK_FILE = ".lock"
 #: Seconds the reachability check of `--address` waits for the Ray head.
 CONNECT_TIMEOUT = 3.0
 
-
-def _os_problem(exc: OSError) -> str:
-    return exc.strerror or one_line(exc)
-
-
-def sweep_folder(out: str | os.PathLike) -> Path:
-    """`out` as an absolute path (symbolic links kept: Ray nodes see a shared folder under the
-    same name), made with its `runs/` folder when missing.
-
-    Raises:
-        UsageError: one line: `out` is empty, a file, under a file, or cannot be made.
-    """
-    text = os.fspath(out)
-    if not str(text).strip():
-        raise UsageError("--out needs a folder, actual value: ''")
-    path = Path(os.path.abspath(text))
-    for place in (path / "runs", *(path / "runs").parents):
-        if place.exists() or place.is_symlink():
-            if not place.is_dir():
-                what = "--out" if place == path else f"--out {text}:"
-                raise UsageError(f"{what} {place} is a file, not a folder")
-            break
-    try:
-        (path / "runs").mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UsageError(f"--out {text}: cannot make the folder {exc.filename or path} "
-                         f"({_os_problem(exc)})") from None
-    return path
-
-
-_HELD: dict[str, list[Any]] = {}  # real path of a sweep folder → [fd, depth]
-_HELD_GUARD = threading.Lock()
-
-
-def _describe_holder(info: dict[str, Any]) -> str:
-    text = (f"pid {info.get('pid', '?')} on {info.get('host', '?')}, "
-            f"started {info.get('started', '?')}")
-    if info.get("command"):
-        text += f": {info['command']}"
-    return text
-
-
-def _read_holder(fd: int) -> dict[str, Any]:
-    try:
-        info = json.loads(os.pread(fd, 65536, 0).decode("utf-8", errors="replace") or "{}")
-    except (OSError, ValueError, RecursionError):
-        return {}
-    return info if isinstance(info, dict) else {}
-
-
-@contextlib.contextmanager
-def sweep_lock(out: str | os.PathLike, command: str | None = None) -> Any:
-    """Own the sweep folder `out` (made when missing) while the block runs: an exclusive
-    `flock` on `out/.lock`, which names the holder (pid, host, start, command). Re-entrant in
-    one process (`experiment run all` holds it across its experiments). Yields `out` as an
-    absolute path.
-
-    Raises:
-        UsageError: another process holds the folder (one line naming it), or `out` cannot be
-            made or written (`sweep_folder`).
-    """
-    path = sweep_folder(out)
-    real = os.path.realpath(path)
-    with _HELD_GUARD:
-        held = _HELD.get(real)
-        if held is not None:
-            held[1] += 1
-    if held is not None:
-        try:
-            yield path
-        finally:
-            with _HELD_GUARD:
-                held[1] -= 1
-        return
-    lock = path / LOCK_FILE
-    try:
-        fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
-    except OSError as exc:
-        raise UsageError(f"--out {os.fspath(out)}: cannot write there: {lock}: "
-                         f"{_os_problem(exc)}") from None
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            info = _read_holder(fd)
-            holder = _describe_holder(info) if info else "its pid is not written yet"
-            raise UsageError(f"{path} is in use by another sweep ({holder}); one sweep writes "
-                             "a folder at a time: wait for it to end, or stop it") from None
-        except OSError as exc:
-            raise UsageError(f"{lock}: cannot lock it ({_os_problem(exc)}); the sweep folder "
-                             "needs a filesystem with file locks") from None
-        info = {"pid": os.getpid(), "host": socket.gethostname(), "started": _now(),
-                "command": command or shlex.join(sys.argv)}
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, (json.dumps(info) + "\n").encode(), 0)
-        with _HELD_GUARD:
-            _HELD[real] = [fd, 1]
-        try:
-            yield path
-        finally:
-            with _HELD_GUARD:
-                del _HELD[real]
-            with contextlib.suppress(OSError):
-                os.ftruncate(fd, 0)  # released: the file names no holder
-    finally:
-        os.close(fd)  # drops the lock (the kernel drops it too if this process dies)
-
-
-def lock_holder(out: str | os.PathLike) -> str | None:
-    """Who holds the sweep folder `out` (`_describe_holder`), or None when no sweep appears to:
-    read from `out/.lock` without locking it (a sweep killed without releasing it leaves its
-    holder written there; its pid is checked on this host)."""
-    lock = Path(out) / LOCK_FILE
-    try:
-        fd = os.open(lock, os.O_RDONLY | os.O_CLOEXEC)
-    except OSError:
-        return None
-    try:
-        info = _read_holder(fd)
-    finally:
-        os.close(fd)
-    if not info:
-        return None
-    pid = info.get("pid")
-    if info.get("host") == socket.gethostname() and isinstance(pid, int):
-        if pid == os.getpid():
-            return _describe_holder(info)
-        try:
-            os.kill(pid, 0)
-        except ProcessLookupError:
-            return None  # a killed sweep's file
-        except OSError:
-            pass
-    return _describe_holder(info)
-
-
-# -- checks before a sweep touches anything --------------------------------------------------------
 
 def check_ray_address(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
     """Refuse a `--address` that is not HOST:PORT or where nothing answers (a TCP connect to
@@ -569,7 +199,7 @@ def check_ray_address(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
         raise UsageError(f"--address {address}: no answer within {timeout:g} s; is the Ray "
                          "head running there and the port open?") from None
     except OSError as exc:
-        raise UsageError(f"--address {address}: cannot connect ({_os_problem(exc)}); is the "
+        raise UsageError(f"--address {address}: cannot connect ({os_problem(exc)}); is the "
                          "Ray head running there (`ray start --head`)?") from None
 
 
@@ -647,14 +277,12 @@ def run_experiment(name: str, budget: str, out: str | Path, *, jobs: int = 1,
         except OSError as exc:  # a full disk, a folder made read-only meanwhile
             raise UsageError(f"cannot write the sweep folder {folder}: "
                              f"{exc.filename or ''}{': ' if exc.filename else ''}"
-                             f"{_os_problem(exc)}") from None
+                             f"{os_problem(exc)}") from None
 
 
 def _finished(runs: Path, key: str, progress: _Progress, name: str) -> bool:
     """Whether run `key` finished: a `result.json` of the right shape. A corrupt one is moved
     aside (`result.json.corrupt-{time}`, named on the progress stream): the run runs again."""
-    from routine_gym.experiments.report import result_problem
-
     path = runs / key / "result.json"
     if not (path.exists() or path.is_symlink()):
         return False
@@ -712,8 +340,8 @@ def _sweep(name: str, budget: str, out: Path, entries: list[Entry], *, jobs: int
         progress.show(done, set(), {}, force=True)
         return summary
 
-    runner = (_LocalBackend(jobs) if backend == "local"
-              else _RayBackend(jobs, address, cpus_per_run, cuda))
+    runner = (LocalBackend(jobs) if backend == "local"
+              else RayBackend(jobs, address, cpus_per_run, cuda))
     handles: dict[Any, str] = {}
     failed: dict[str, str] = {}
     try:
@@ -757,18 +385,3 @@ def _sweep(name: str, budget: str, out: Path, entries: list[Entry], *, jobs: int
         stream.write("\n")
     summary.failed = failed
     return summary
-
-
-def _sigterm(*_: Any) -> None:
-    raise KeyboardInterrupt
-
-
-_HANDLING_SIGTERM = False
-
-
-def install_signal_handlers() -> None:
-    """SIGTERM stops a sweep as Ctrl-C does: the runs' processes are stopped with it (and a
-    local Ray instance is shut down)."""
-    global _HANDLING_SIGTERM
-    _HANDLING_SIGTERM = True
-    signal.signal(signal.SIGTERM, _sigterm)

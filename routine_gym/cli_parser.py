@@ -1,0 +1,171 @@
+"""The grammar of the `routine-gym` command line: its commands, their arguments and help.
+
+One function per command adds its parser; `routine_gym.cli.build_parser` binds each command to
+the function that runs it.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+__all__ = ["build_parsers"]
+
+
+def build_parsers() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser]]:
+    """The `routine-gym` parser, and the parser of each runnable command by name (`mine`, ...,
+    `experiment run`), for the caller to bind to the function that runs it."""
+    parser = argparse.ArgumentParser(
+        prog="routine-gym",
+        description="Mine action routines from a demonstration, inspect them, and record or "
+        "replay demonstrations. Errors are one line with exit code 2; --debug (anywhere on the "
+        "command line) or ROUTINE_GYM_DEBUG=1 shows their traceback.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    return parser, {
+        "mine": _add_mine(sub),
+        "show": _add_show(sub),
+        "show-demos": _add_show_demos(sub),
+        "replay": _add_replay(sub),
+        "upgrade": _add_upgrade(sub),
+        "record": _add_record(sub),
+        "play": _add_play(sub),
+        **_add_experiment(sub),
+    }
+
+
+def _add_mine(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """`routine-gym mine DEMO`: mine a routine library and print it."""
+    p = sub.add_parser("mine", help="mine a routine library from a demo and print it",
+                       description="Mine the top-K routines of a demo (SPEC §2) and print them "
+                       "with action names, scores and frequencies.")
+    p.add_argument("demo", help="demo file (.npz) written by routine-gym")
+    p.add_argument("--num-routines", "-k", type=int, default=3, help="K, routines to keep (3)")
+    p.add_argument("--length-weight", type=float, default=0.1,
+                   help="λ_length in the score f + λ·len (0.1)")
+    p.add_argument("--alpha", type=int, default=2,
+                   help="prune candidates within this Levenshtein distance of an accepted one (2)")
+    p.add_argument("--proposer", default="full",
+                   choices=["full", "random", "enumerate", "random-fetch", "repeat"],
+                   help="full = Sequitur (the paper's model); the others are its ablations")
+    p.add_argument("--seed", type=int, default=0, help="seed of the random ablation proposers")
+    p.add_argument("--keep-near-primitives", action="store_true",
+                   help="do not count primitives as accepted (keeps length-2 routines at α=2)")
+    p.add_argument("--max-routine-length", type=int, default=64, help="longest routine (64)")
+    p.add_argument("--out", "-o", help="save the library as JSON here")
+    return p
+
+
+def _add_show(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """`routine-gym show PATH`: print a routine library or a demo."""
+    p = sub.add_parser("show", help="print a routine library (.json) or a demo (.npz)")
+    p.add_argument("path", help="a routine library JSON or a demo .npz")
+    p.add_argument("--head", type=int, default=20, help="demo actions to print (20)")
+    return p
+
+
+def _add_show_demos(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """`routine-gym show-demos`: the shipped demos and their routines."""
+    p = sub.add_parser("show-demos", help="list the shipped demos with their mined routines",
+                       description="List every demo in demos/ (or --dir): env, score, length, "
+                       "source, and the routines mined from it with action names.")
+    p.add_argument("--dir", default=None, help="demo folder (the shipped demos/)")
+    p.add_argument("--num-routines", "-k", type=int, default=3, help="K, routines to mine (3)")
+    return p
+
+
+def _add_replay(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """`routine-gym replay DEMO`: replay a demo from its seeds and verify it."""
+    p = sub.add_parser("replay", help="replay a demo from its seed and verify it",
+                       description="Re-run the demo's actions in its env from its seed and "
+                       "check rewards, terminations and length match. Exit code 1 on mismatch.")
+    p.add_argument("demo", help="demo file (.npz)")
+    p.add_argument("--episode", type=int, default=None, help="replay only this episode")
+    return p
+
+
+def _add_upgrade(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """`routine-gym upgrade DEMO`: rewrite a version-1 demo as version 2."""
+    p = sub.add_parser("upgrade", help="rewrite a version-1 demo as version 2",
+                       description="Replay a version-1 demo through the preprocessing it was "
+                       "recorded under and mark which steps the demonstrator decided and which "
+                       "the preprocessing injected (no-op start, FIRE, served lives). Refuses "
+                       "when the replay diverges; nothing is written then.")
+    p.add_argument("demo", help="demo file (.npz), format version 1")
+    p.add_argument("--out", "-o", default=None, help="write here (default: replace DEMO)")
+    p.add_argument("--preprocessing", default="auto",
+                   help="the stack it was recorded under: agent (the evaluation view that "
+                   "rapl_a2c.py --record-demo uses), agent-0.1 (Atari, without served lives), "
+                   "raw (CLI record and play: every step a decision), or auto: the first of "
+                   "these that replays exactly (auto)")
+    return p
+
+
+def _add_record(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """`routine-gym record ENV_ID`: record an agent's demo."""
+    p = sub.add_parser("record", help="record an agent's demo (best of N episodes)",
+                       description="Run a policy for N episodes and save the best one.")
+    p.add_argument("env_id", help="a Gymnasium env id, e.g. MiniQbert-v0 or ALE/Qbert-v5")
+    p.add_argument("--out", "-o", required=True, help="demo file to write (.npz)")
+    p.add_argument("--policy", default="random",
+                   help="random, expert (MiniQbert's scripted expert) or module:function "
+                   "taking an observation and returning an action (random)")
+    p.add_argument("--expert-noise", type=float, default=0.0,
+                   help="with --policy expert: probability of a uniformly random action (0)")
+    p.add_argument("--episodes", "-n", type=int, default=10, help="episodes to run (10)")
+    p.add_argument("--keep", choices=["best", "all"], default="best",
+                   help="save the best episode or all of them (best)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the first episode (0)")
+    p.add_argument("--max-steps", type=int, default=None, help="cut episodes at this length")
+    p.add_argument("--observations", action="store_true", help="store observations too")
+    p.add_argument("--env-kwarg", action="append", metavar="KEY=VALUE",
+                   help="keyword argument for gym.make (repeatable)")
+    return p
+
+
+def _add_play(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """`routine-gym play ENV_ID`: record a person's demo at the keyboard."""
+    p = sub.add_parser("play", help="play an env with the keyboard and save the demo",
+                       description="Human demonstration through gymnasium.utils.play. Needs a "
+                       "display. Close the window or press Escape to stop.")
+    p.add_argument("env_id", help="a Gymnasium env id with keyboard controls, e.g. ALE/Qbert-v5")
+    p.add_argument("--out", "-o", required=True, help="demo file to write (.npz)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the first episode (0)")
+    p.add_argument("--episodes", "-n", type=int, default=1, help="episodes to play (1)")
+    p.add_argument("--fps", type=int, default=None, help="frames per second (env default)")
+    p.add_argument("--zoom", type=float, default=None, help="window zoom factor")
+    p.add_argument("--observations", action="store_true", help="store observations too")
+    p.add_argument("--env-kwarg", action="append", metavar="KEY=VALUE",
+                   help="keyword argument for gym.make (repeatable)")
+    return p
+
+
+def _add_experiment(sub: argparse._SubParsersAction) -> dict[str, argparse.ArgumentParser]:
+    """`routine-gym experiment list|run|report`: the paper's experiments."""
+    p = sub.add_parser("experiment", help="the paper's six experiments: list, run, report",
+                       description="The paper's six experiments (SPEC §8) as sweeps of runs of "
+                       "the scripts in algos/: resumable, local or on a Ray cluster.")
+    esub = p.add_subparsers(dest="action", required=True, metavar="ACTION")
+    listing = esub.add_parser("list",
+                              help="the experiments, their budgets and how many runs each has")
+    q = esub.add_parser("run", help="run an experiment (finished runs are skipped, killed ones "
+                        "resume)")
+    q.add_argument("name", help="imitation, rl, curves, coinrun, scalability, ablation or all")
+    q.add_argument("--budget", required=True, help="smoke, cpu or paper")
+    q.add_argument("--out", required=True, help="the sweep folder (the same one to resume)")
+    q.add_argument("--jobs", type=int, default=1,
+                   help="runs at a time (local), or the local Ray instance's CPUs (1)")
+    q.add_argument("--backend", default="local", help="local (default) or ray")
+    q.add_argument("--address", default=None,
+                   help="HOST:PORT of a Ray cluster to join (default: start a local one)")
+    q.add_argument("--seeds", type=int, nargs="+", default=None, help="only these seeds")
+    q.add_argument("--envs", nargs="+", default=None, help="only these games")
+    q.add_argument("--cuda", action="store_true", help="runs use CUDA (Ray: one GPU per run)")
+    q.add_argument("--cpus-per-run", type=int, default=1,
+                   help="CPUs a Ray task asks for, ≥ 1 (1)")
+    run = q
+    q = esub.add_parser("report", help="figures (PNG + CSV) and report.md of a sweep folder",
+                        description="Write OUT/report/ from the runs finished in OUT. It only "
+                        "reads the sweep, so it may run while a sweep runs there (the runs in "
+                        "flight count as missing).")
+    q.add_argument("out", help="the sweep folder of `experiment run`")
+    return {"experiment list": listing, "experiment run": run, "experiment report": q}

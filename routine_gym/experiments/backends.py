@@ -1,0 +1,256 @@
+"""Running one run, and the backends that run a sweep's runs (SPEC §8).
+
+`execute_run` runs (or resumes) one run's script to its end in its folder and writes its
+`result.json`; both backends call it. `local` is a pool of `--jobs` threads each waiting on one
+run's process on this machine; `ray` is one Ray task per run asking for its CPUs (and a GPU with
+`--cuda`), in a cluster it joins (`--address`) or a local instance it starts and stops. A run's
+process dies with the sweep that started it, and SIGTERM stops a sweep as Ctrl-C does
+(`install_signal_handlers`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import json
+import os
+import shlex
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from routine_gym.atomic import atomic_write_text
+from routine_gym.errors import UsageError, one_line
+from routine_gym.experiments import read_json_object, utc_now
+from routine_gym.experiments.results import result_problem
+from routine_gym.experiments.training_curves import CURVE_BINS, curve_bins, read_episodic_returns
+
+__all__ = ["LocalBackend", "RayBackend", "command", "execute_run", "install_signal_handlers",
+           "file_tail", "script_path"]
+
+REPO = Path(__file__).resolve().parents[2]
+
+def script_path(script: str) -> Path:
+    """`algos/{script}.py` of this checkout, or of the installed package."""
+    for folder in (REPO / "algos", Path(__file__).resolve().parents[1] / "algos"):
+        path = folder / f"{script}.py"
+        if path.is_file():
+            return path
+    raise UsageError(f"cannot find the script {script}.py (looked in {REPO / 'algos'})")
+
+
+def _resolve(value: Any, runs: Path, key: str) -> list[str]:
+    """A flag value as command-line words, with `@self/` and `@run:KEY/` made paths."""
+    if isinstance(value, list | tuple):
+        return [w for v in value for w in _resolve(v, runs, key)]
+    if isinstance(value, bool):
+        return ["True" if value else "False"]
+    text = str(value)
+    if text.startswith("@self/"):
+        return [str(runs / key / text[len("@self/"):])]
+    if text.startswith("@run:"):
+        other, _, rest = text[len("@run:"):].partition("/")
+        return [str(runs / other / rest)]
+    return [text]
+
+
+def command(config: dict[str, Any], runs: Path, cuda: bool = False,
+            python: str | None = None) -> list[str]:
+    """The command line of a run: resume from its newest checkpoint, or start it."""
+    key = config["key"]
+    folder = runs / key
+    python = python or sys.executable
+    script = str(script_path(config["script"]))
+    checkpoints = sorted(folder.glob("*/checkpoint.pt"), key=lambda p: p.stat().st_mtime)
+    if checkpoints:
+        return [python, script, "--resume", str(checkpoints[-1].parent)]
+    words = [python, script]
+    for flag, value in config["flags"].items():
+        words += [f"--{flag}", *_resolve(value, runs, key)]
+    words += ["--run-dir", str(folder), "--torch-threads", "1"]
+    if cuda:
+        words.append("--cuda")
+    return words
+
+
+def _die_with_parent() -> None:
+    """In the child: be killed when the process that started it dies (Linux), so a killed
+    sweep leaves no orphan run writing into its folder."""
+    with contextlib.suppress(Exception):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    os.setpgrp()
+
+
+_CHILDREN: set[subprocess.Popen] = set()
+_CHILDREN_LOCK = threading.Lock()
+
+
+def file_tail(path: Path, size: int) -> bytes | None:
+    """The last `size` bytes of a file, None when it cannot be read."""
+    try:
+        with open(path, "rb") as fh:
+            fh.seek(max(0, fh.seek(0, os.SEEK_END) - size))
+            return fh.read()
+    except OSError:
+        return None
+
+
+def _last_line(path: Path) -> str:
+    tail = file_tail(path, 4096)
+    if tail is None:
+        return "(no log)"
+    lines = [ln.strip() for ln in tail.decode(errors="replace").splitlines() if ln.strip()]
+    return lines[-1] if lines else "(no output)"
+
+
+def _curve(run_dir: Path, total_steps: int) -> dict[str, Any] | None:
+    """The run's training episodes binned as the report bins them
+    (`training_curves.curve_bins`), so a snapshot of `result.json`s draws Fig. 3 without the
+    TensorBoard logs; None without a budget."""
+    if total_steps <= 0:
+        return None
+    steps, returns = read_episodic_returns(run_dir)
+    sums, counts = curve_bins(steps, returns, total_steps)
+    return {"total_steps": total_steps, "bins": CURVE_BINS,
+            "sums": [round(float(v), 6) for v in sums], "counts": counts.tolist()}
+
+
+def execute_run(config: dict[str, Any], runs_dir: str, cuda: bool = False) -> dict[str, Any]:
+    """Run (or resume) one run to the end and write its `result.json`; returns the result, or
+    `{"key", "error"}` with the last line of its log. Used by both backends (a Ray task runs it
+    on whichever node it lands)."""
+    # Absolute: the run's process works in its own folder (a Ray task on whichever node).
+    runs = Path(os.path.abspath(runs_dir))
+    folder = runs / config["key"]
+    log = folder / "log.txt"
+    words = command(config, runs, cuda=cuda)
+    start = time.time()
+    with open(log, "ab") as out:
+        out.write(f"# {utc_now()} {shlex.join(words)}\n".encode())
+        out.flush()
+        proc = subprocess.Popen(words, stdout=out, stderr=subprocess.STDOUT,
+                                stdin=subprocess.DEVNULL, cwd=str(folder),
+                                preexec_fn=_die_with_parent)
+        with _CHILDREN_LOCK:
+            _CHILDREN.add(proc)
+        try:
+            code = proc.wait()
+        finally:
+            with _CHILDREN_LOCK:
+                _CHILDREN.discard(proc)
+    evals = sorted(folder.glob("*/eval.json"), key=lambda p: p.stat().st_mtime)
+    if code != 0 or not evals:
+        why = f"exit code {code}" if code != 0 else "no eval.json"
+        return {"key": config["key"], "error": f"{why}: {_last_line(log)}"}
+    run_dir = evals[-1].parent
+    try:
+        extra = {p.stem[len("eval-"):]: read_json_object(p)
+                 for p in sorted(run_dir.glob("eval-*.json"))}
+        result = {"key": config["key"], "run_dir": run_dir.name,
+                  "eval": read_json_object(evals[-1]), "evals": extra,
+                  "curve": _curve(run_dir, int(config.get("steps") or 0)),
+                  "seconds": time.time() - start, "finished": utc_now()}
+    except UsageError as exc:
+        return {"key": config["key"], "error": one_line(exc)}
+    problem = result_problem(result, config["key"])
+    if problem:  # never a result.json that the next sweep would call corrupt
+        return {"key": config["key"], "error": f"its evaluation in {run_dir}: {problem}"}
+    atomic_write_text(folder / "result.json", json.dumps(result, indent=2) + "\n")
+    return result
+
+
+def _kill_children() -> None:
+    with _CHILDREN_LOCK:
+        for proc in list(_CHILDREN):
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGTERM)
+
+
+class LocalBackend:
+    """A pool of `jobs` threads, each waiting on one run's process."""
+
+    def __init__(self, jobs: int) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.pool = ThreadPoolExecutor(max_workers=jobs)
+
+    def submit(self, config: dict, runs: Path, cuda: bool) -> Any:
+        return self.pool.submit(execute_run, config, str(runs), cuda)
+
+    def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, dict]]:
+        from concurrent.futures import FIRST_COMPLETED, wait
+
+        done, _ = wait(handles, timeout=timeout, return_when=FIRST_COMPLETED)
+        return [(h, _outcome(h.result)) for h in done]
+
+    def close(self) -> None:
+        _kill_children()
+        self.pool.shutdown(wait=True, cancel_futures=True)
+
+
+class RayBackend:
+    """One Ray task per run, asking for `cpus` CPUs (and a GPU with `--cuda`)."""
+
+    def __init__(self, jobs: int, address: str | None, cpus: int, cuda: bool) -> None:
+        try:
+            import ray
+        except ImportError:
+            raise UsageError("--backend ray needs Ray: pip install 'routine-gym[ray]'") from None
+        self.ray = ray
+        self.started = not ray.is_initialized()
+        if self.started:
+            os.environ.setdefault("RAY_AUTH_MODE", "disabled")
+            kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False,
+                                      "configure_logging": False}
+            try:
+                if address:
+                    ray.init(address=address, **kwargs)
+                else:
+                    ray.init(num_cpus=jobs * cpus, num_gpus=1 if cuda else 0, **kwargs)
+            except Exception as err:  # noqa: BLE001 - Ray raises many kinds; one line here
+                where = f"the Ray cluster at {address}" if address else "a local Ray instance"
+                raise UsageError(f"cannot start or join {where}: "
+                                 f"{str(err).strip().splitlines()[0]}") from None
+        if self.started and _HANDLING_SIGTERM and (
+                threading.current_thread() is threading.main_thread()):
+            signal.signal(signal.SIGTERM, _sigterm)  # Ray's own handler would just exit
+        self.task = ray.remote(num_cpus=cpus, num_gpus=1 if cuda else 0,
+                               max_retries=0)(execute_run)
+
+    def submit(self, config: dict, runs: Path, cuda: bool) -> Any:
+        return self.task.remote(config, str(runs), cuda)
+
+    def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, dict]]:
+        done, _ = self.ray.wait(list(handles), num_returns=1, timeout=timeout)
+        return [(h, _outcome(lambda h=h: self.ray.get(h))) for h in done]
+
+    def close(self) -> None:
+        if self.started:
+            self.ray.shutdown()
+
+
+def _outcome(get: Callable[[], dict]) -> dict:
+    try:
+        return get()
+    except Exception as err:  # noqa: BLE001 - a run's crash is reported, not raised
+        return {"error": f"{type(err).__name__}: {str(err).strip().splitlines()[-1:]}"}
+
+
+def _sigterm(*_: Any) -> None:
+    raise KeyboardInterrupt
+
+
+_HANDLING_SIGTERM = False
+
+
+def install_signal_handlers() -> None:
+    """SIGTERM stops a sweep as Ctrl-C does: the runs' processes are stopped with it (and a
+    local Ray instance is shut down)."""
+    global _HANDLING_SIGTERM
+    _HANDLING_SIGTERM = True
+    signal.signal(signal.SIGTERM, _sigterm)

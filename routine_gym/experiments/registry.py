@@ -1,0 +1,113 @@
+"""The registry of experiments: one line per experiment, in the order of `experiment list` and
+of the report. Adding an experiment is one file in `routine_gym/experiments/paper/` holding an
+`Experiment`, and one `register` line here.
+
+`build(name, budget)` makes an experiment's entries (its runs with their labels) at a budget;
+`left_out`, `games` and `count_runs` say what it leaves out, which games it has and how big it
+is.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Sequence
+from dataclasses import replace
+from typing import Any
+
+from routine_gym.errors import UsageError
+from routine_gym.experiments.experiment import Experiment
+from routine_gym.experiments.paper import ablation, coinrun, curves, imitation, rl, scalability
+from routine_gym.experiments.specs import BUDGETS, Builder, Entry
+
+__all__ = ["EXPERIMENTS", "build", "count_runs", "games", "left_out", "register"]
+
+#: The experiments by name, in the order of `experiment list` and of the report.
+EXPERIMENTS: dict[str, Experiment] = {}
+
+
+def register(experiment: Experiment) -> Experiment:
+    """Add `experiment` to `EXPERIMENTS` (after those there).
+
+    Raises:
+        ValueError: an experiment of that name is registered already.
+    """
+    if experiment.name in EXPERIMENTS:
+        raise ValueError(f"an experiment named {experiment.name!r} is registered already")
+    EXPERIMENTS[experiment.name] = experiment
+    return experiment
+
+
+register(imitation.EXPERIMENT)
+register(rl.EXPERIMENT)
+register(curves.EXPERIMENT)
+register(coinrun.EXPERIMENT)
+register(scalability.EXPERIMENT)
+register(ablation.EXPERIMENT)
+
+
+def build(name: str, budget: str, seeds: Sequence[int] | None = None,
+          envs: Sequence[str] | None = None) -> list[Entry]:
+    """The entries of experiment `name` at `budget`, optionally only some seeds and envs
+    (`envs` filters the games of every part; CoinRun's experiment has one game).
+
+    Raises:
+        UsageError: an unknown experiment or budget, a seed outside the budget's, or an env
+            that is not one of the experiment's games at that budget (`games`).
+    """
+    return _build(name, budget, seeds, envs)[0]
+
+
+def left_out(name: str, budget: str, envs: Sequence[str] | None = None
+             ) -> list[dict[str, Any]]:
+    """The settings of experiment `name` at `budget` that have no runs, each with its env,
+    variant and why (the scalability experiment's minimum lengths a shipped demo has no
+    routine of)."""
+    return _build(name, budget, None, envs)[1]
+
+
+def _build(name: str, budget: str, seeds: Sequence[int] | None,
+           envs: Sequence[str] | None) -> tuple[list[Entry], list[dict[str, Any]]]:
+    if name not in EXPERIMENTS:
+        raise UsageError(f"unknown experiment {name!r}; choose from {', '.join(EXPERIMENTS)}")
+    if budget not in BUDGETS:
+        raise UsageError(f"unknown budget {budget!r}; choose from {', '.join(BUDGETS)}")
+    sizes = BUDGETS[budget]
+    if envs:
+        known = games(name, budget)
+        unknown = [e for e in envs if e not in known]
+        if unknown:
+            raise UsageError(f"--envs {unknown[0]} is not a game of the {name} experiment at "
+                             f"the {budget} budget (its games: {', '.join(known)})")
+        keep = set(envs)
+        sizes = replace(sizes, games=tuple(g for g in sizes.games if g in keep),
+                        rl_games=tuple(g for g in sizes.rl_games if g in keep),
+                        imitation_games=tuple(g for g in sizes.imitation_games if g in keep),
+                        ablation_games=None if sizes.ablation_games is None else tuple(
+                            g for g in sizes.ablation_games if g in keep))
+    builder = Builder(sizes)
+    EXPERIMENTS[name].add_runs(builder)
+    entries = list(builder.entries.values())
+    if seeds:
+        bad = [s for s in seeds if not 1 <= s <= sizes.seeds]
+        if bad:
+            raise UsageError(f"--seeds {bad[0]} is outside the {budget} budget's seeds "
+                             f"1..{sizes.seeds}")
+        entries = [e for e in entries if e.role != "main" or e.seed in set(seeds)]
+    return entries, builder.left_out
+
+
+@functools.cache
+def games(name: str, budget: str) -> tuple[str, ...]:
+    """The games experiment `name` has at `budget` (what `--envs` may name), sorted.
+
+    Raises:
+        UsageError: an unknown experiment or budget.
+    """
+    return tuple(sorted({e.env_id for e in build(name, budget) if e.role == "main"}))
+
+
+def count_runs(name: str, budget: str) -> tuple[int, int]:
+    """(runs, agent steps) of experiment `name` at `budget`, experts included."""
+    entries = build(name, budget)
+    runs = {e.run.key: e.run.steps for e in entries}
+    return len(runs), sum(runs.values())

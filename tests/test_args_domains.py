@@ -1,0 +1,114 @@
+"""Every numeric flag of every script has its domain checked before any work.
+
+A flag's domain is a rule in `routine_gym.run.DOMAINS` (shared by the scripts), a rule of the
+script's module-level `extra_checks(args)` (its own flags), or a line of `ANY_VALUE` saying why
+any value is legitimate. A new int or float field of an `Args` with none of the three fails
+`test_every_numeric_flag_has_a_domain`, naming its script and flag.
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import os
+import types
+import typing
+
+import pytest
+from script_loader import ALGOS, load_script
+
+from routine_gym.errors import UsageError
+from routine_gym.run import DOMAINS
+
+NAMES = sorted(path.stem for path in ALGOS.glob("*.py"))
+SCRIPTS = {name: load_script(name, f"domains_{name}") for name in NAMES}
+
+#: Numeric flags where any value is legitimate, with why. None today: even `--seed` has a domain
+#: (NumPy's global seed takes only [0, 2**32 - 1]).
+ANY_VALUE: dict[str, str] = {}
+
+
+def numeric_fields(args_type: type) -> list[str]:
+    """The `Args` fields whose type is int or float, alone or in a union (`int | None`)."""
+    hints = typing.get_type_hints(args_type)
+    names = []
+    for field in dataclasses.fields(args_type):
+        hint = hints[field.name]
+        union = isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union
+        if any(t in (int, float) for t in (typing.get_args(hint) if union else (hint,))):
+            names.append(field.name)
+    return names
+
+
+def own_checked_fields(module: types.ModuleType) -> set[str]:
+    """The fields the script's `extra_checks` rules, read from a call on the default `Args`."""
+    checks = getattr(module, "extra_checks", None)
+    return {name for name, _, _ in checks(module.Args())} if checks else set()
+
+
+def test_numeric_fields_sees_ints_floats_and_optional_ones():
+    @dataclasses.dataclass
+    class Args:
+        a: int = 1
+        b: float = 1.0
+        c: int | None = None
+        d: bool = True
+        e: str = "x"
+
+    assert numeric_fields(Args) == ["a", "b", "c"]
+
+
+@pytest.mark.parametrize("script", NAMES)
+def test_every_numeric_flag_has_a_domain(script):
+    module = SCRIPTS[script]
+    covered = set(DOMAINS) | own_checked_fields(module) | set(ANY_VALUE)
+    missing = [name for name in numeric_fields(module.Args) if name not in covered]
+    assert missing == [], (f"{script}.py: no domain for {missing}: add one to "
+                           "routine_gym.run.DOMAINS, to the script's extra_checks, or to "
+                           "ANY_VALUE with why")
+
+
+@pytest.mark.parametrize("script", NAMES)
+def test_the_script_passes_its_own_checks_as_extra_checks(script):
+    # One shape, so the rules are found above: a module-level `extra_checks`, handed to
+    # start_run by that name (not a lambda, which a test could not read).
+    tree = ast.parse((ALGOS / f"{script}.py").read_text())
+    calls = [node for node in ast.walk(tree) if isinstance(node, ast.Call)
+             and getattr(node.func, "id", None) == "start_run"]
+    assert len(calls) == 1
+    given = [kw.value for kw in calls[0].keywords if kw.arg == "extra_checks"]
+    if hasattr(SCRIPTS[script], "extra_checks"):
+        assert len(given) == 1 and isinstance(given[0], ast.Name)
+        assert given[0].id == "extra_checks"
+    else:
+        assert given == []
+
+
+@pytest.mark.parametrize("script", NAMES)
+def test_the_defaults_pass_every_check(script):
+    module = SCRIPTS[script]
+    args = module.Args()
+    for name in numeric_fields(module.Args):
+        value = getattr(args, name)
+        if name in DOMAINS and value is not None:
+            test, needs = DOMAINS[name]
+            assert test(value), f"{script}.py: default --{name} {value} is not {needs}"
+    for name, holds, needs in (module.extra_checks(args)
+                               if hasattr(module, "extra_checks") else []):
+        assert holds, f"{script}.py: default --{name} is not {needs}"
+
+
+@pytest.mark.parametrize(("script", "setting", "message"), [
+    *[(script, {"seed": -1}, "--seed needs to be in [0, 2**32 - 1], actual value: -1")
+      for script in NAMES],
+    ("rapl_a2c", {"seed": 2**32},
+     "--seed needs to be in [0, 2**32 - 1], actual value: 4294967296"),
+    ("option_critic", {"deliberation_cost": -0.01},
+     "--deliberation-cost needs to be ≥ 0, actual value: -0.01"),
+])
+def test_a_value_outside_its_domain_is_refused_by_name(script, setting, message, tmp_path):
+    module = SCRIPTS[script]
+    with pytest.raises(UsageError) as refused:
+        module.main(module.Args(env_id="MiniQbert-v0", run_dir=str(tmp_path), **setting))
+    assert message in str(refused.value)
+    assert os.listdir(tmp_path) == []  # refused before a run folder was made
