@@ -21,8 +21,10 @@ no reward clipping (rewards are small integers), evaluation as training (no life
 from __future__ import annotations
 
 import contextlib
+import importlib
 import io
 import logging
+import sys
 from typing import Any
 
 import gymnasium as gym
@@ -49,15 +51,33 @@ _KEYS = {"NOOP": None, "LEFT": "a", "UP": "w", "RIGHT": "d", "DOWN": "s", "FIRE"
 _PIXELS = 16  # rendered pixels per cell
 
 
+#: What `minatar.environment` imports only to draw its own window (pyplot, seaborn: about 2 s
+#: of a process's start, with scipy); routine-gym draws its own frames and never opens it.
+_DRAWING_MODULES = ("matplotlib", "matplotlib.pyplot", "matplotlib.colors", "seaborn")
+
+
 def _environment_class():
-    # MinAtar logs a warning (and imports matplotlib) when seaborn is missing; routine-gym draws
-    # its own frames, so the notice is noise.
-    with contextlib.redirect_stderr(io.StringIO()):
-        logging.disable(logging.WARNING)
+    # MinAtar imports its drawing libraries in a try block and logs a warning when they are
+    # missing. While it is imported, the ones not loaded yet are marked missing (None in
+    # sys.modules), so that a process stepping MinAtar never pays for them; the warning is
+    # noise and is silenced. Stepping never uses them, so the games are unchanged.
+    if "minatar.environment" not in sys.modules:
+        blocked = [name for name in _DRAWING_MODULES if name not in sys.modules]
+        for name in blocked:
+            sys.modules[name] = None  # type: ignore[assignment]
         try:
-            from minatar import Environment
+            with contextlib.redirect_stderr(io.StringIO()):
+                logging.disable(logging.WARNING)
+                try:
+                    importlib.import_module("minatar.environment")
+                finally:
+                    logging.disable(logging.NOTSET)
         finally:
-            logging.disable(logging.NOTSET)
+            for name in blocked:
+                if sys.modules.get(name, 0) is None:
+                    del sys.modules[name]
+    from minatar import Environment
+
     return Environment
 
 
