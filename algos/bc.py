@@ -8,9 +8,9 @@ primitive actions) is fitted by cross-entropy to the demo's (state, action) pair
 interaction with the env: its budget is `--gradient-steps`. The pairs are the demonstrator's
 decisions (`routine_gym.imitation.demo_pairs`), with the demo's states rebuilt in the agent's
 view by replaying the demo (`agent_view_states`). The trained policy is then evaluated like
-every script's (`routine_gym.evaluation.evaluate_policy`): score and alignment of its primitive
-actions with the demo's, in `eval.json`. With `--checkpoint-every` a
-killed run resumes (`--resume`) exactly where it stopped: same batches, same optimizer state.
+every script's (`routine_gym.plumbing.evaluation.evaluate_policy`): score and alignment of
+its primitive actions with the demo's, in `eval.json`. With `--checkpoint-every` a killed run
+resumes (`--resume`) exactly where it stopped: same batches, same optimizer state.
 """
 
 from __future__ import annotations
@@ -27,11 +27,11 @@ import torch.nn.functional as F
 from torch.distributions.categorical import Categorical
 
 import routine_gym
-from routine_gym.evaluation import evaluate_policy, save_evaluation
 from routine_gym.imitation import agent_view_states, demo_pairs
-from routine_gym.loading import check_demo_env, load_demo
 from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.run import run_script, start_run
+from routine_gym.plumbing.evaluation import evaluate_policy, save_evaluation
+from routine_gym.plumbing.loading import check_demo_env, load_demo
+from routine_gym.plumbing.run import run_script, start_run
 
 
 @dataclass

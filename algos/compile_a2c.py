@@ -32,8 +32,8 @@ CPU with one torch thread (and other jobs running): about 0.1 s an ELBO step on 
 minutes in all), 0.55 s an ELBO step and 0.5 s an option step on Atari, whose encoder is the
 Nature CNN (about 15 minutes in all, against hours for the controller's 10M steps).
 
-Evaluation runs through `routine_gym.evaluation.evaluate_policy` (eval.json, alignment with the
-demo), which takes a policy of primitive actions and has no place for an env wrapper: the
+Evaluation runs through `routine_gym.plumbing.evaluation.evaluate_policy` (eval.json, alignment
+with the demo), which takes a policy of primitive actions and has no place for an env wrapper: the
 evaluated policy runs the controller's options itself, one primitive a call, exactly as
 `OptionActionWrapper` would (`routine_gym.baselines.compile.option_primitive_policy`).
 """
@@ -71,13 +71,13 @@ from routine_gym.baselines.compile import (
     train_compile,
 )
 from routine_gym.envs.factory import make_env
-from routine_gym.errors import UsageError
-from routine_gym.evaluation import evaluate_policy, save_evaluation
 from routine_gym.imitation.agent_view import agent_view_states, decision_steps
-from routine_gym.loading import load_demo
 from routine_gym.networks import ObservationEncoder, layer_init
+from routine_gym.plumbing.errors import UsageError
+from routine_gym.plumbing.evaluation import evaluate_policy, save_evaluation
+from routine_gym.plumbing.loading import load_demo
+from routine_gym.plumbing.run import Every, eval_env_kwargs, run_script, start_run, train_env_kwargs
 from routine_gym.returns import decision_returns, macro_reward_and_discount
-from routine_gym.run import Every, eval_env_kwargs, run_script, start_run, train_env_kwargs
 from routine_gym.wrapper import merge_final
 
 
@@ -200,7 +200,7 @@ CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "rng", "arg
 
 
 def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
-    """The CompILE flags' domains (the shared ones are `routine_gym.run.DOMAINS`)."""
+    """The CompILE flags' domains (the shared ones are `routine_gym.plumbing.run.DOMAINS`)."""
     at_least_1 = ("num_options", "compile_latents", "compile_segments", "compile_window",
                   "compile_hidden", "compile_iterations", "compile_batch_size")
     checks = [(name, getattr(args, name) >= 1, "≥ 1") for name in at_least_1]

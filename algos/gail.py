@@ -38,11 +38,11 @@ from torch.distributions.categorical import Categorical
 
 import routine_gym
 from routine_gym.envs.factory import make_env
-from routine_gym.evaluation import evaluate_policy, save_evaluation
 from routine_gym.imitation import agent_view_states, demo_pairs
-from routine_gym.loading import check_demo_env, load_demo
 from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.run import Every, run_script, start_run
+from routine_gym.plumbing.evaluation import evaluate_policy, save_evaluation
+from routine_gym.plumbing.loading import check_demo_env, load_demo
+from routine_gym.plumbing.run import Every, run_script, start_run
 
 
 @dataclass

@@ -45,9 +45,9 @@ from routine_gym.baselines.option_critic import (
     value_upon_arrival,
 )
 from routine_gym.envs.factory import make_env
-from routine_gym.evaluation import evaluate_policy, save_evaluation
 from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.run import Every, eval_env_kwargs, run_script, start_run, train_env_kwargs
+from routine_gym.plumbing.evaluation import evaluate_policy, save_evaluation
+from routine_gym.plumbing.run import Every, eval_env_kwargs, run_script, start_run, train_env_kwargs
 
 
 @dataclass
@@ -149,7 +149,7 @@ CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "rng", "arg
 
 
 def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
-    """The option-critic flags' domains (the shared ones are `routine_gym.run.DOMAINS`)."""
+    """The option-critic flags' domains (the shared ones are `routine_gym.plumbing.run.DOMAINS`)."""
     return [
         ("num_options", args.num_options >= 1, "≥ 1"),
         ("option_epsilon", 0 <= args.option_epsilon <= 1, "in [0, 1]"),

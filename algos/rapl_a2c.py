@@ -44,24 +44,24 @@ from routine_gym.envs.factory import (
     make_primitive_env,
     preprocess,
 )
-from routine_gym.evaluation import evaluate_policy, save_evaluation
 from routine_gym.library import RoutineLibrary
-from routine_gym.loading import load_demo, load_routines
 from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.returns import (
-    decision_returns,
-    inner_states_and_targets,
-    macro_reward_and_discount,
-    primitive_returns,
-    routine_reward_and_discount,
-)
-from routine_gym.run import (
+from routine_gym.plumbing.evaluation import evaluate_policy, save_evaluation
+from routine_gym.plumbing.loading import load_demo, load_routines
+from routine_gym.plumbing.run import (
     Every,
     eval_env_kwargs,
     level_env_kwargs,
     run_script,
     start_run,
     train_env_kwargs,
+)
+from routine_gym.returns import (
+    decision_returns,
+    inner_states_and_targets,
+    macro_reward_and_discount,
+    primitive_returns,
+    routine_reward_and_discount,
 )
 from routine_gym.wrapper import merge_final
 
@@ -193,7 +193,7 @@ CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "rng", "arg
 
 
 def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
-    """The rules between flags (each flag's own domain is in `routine_gym.run.DOMAINS`)."""
+    """The rules between flags (each flag's own domain is in `routine_gym.plumbing.run.DOMAINS`)."""
     return [("min_routine_length", args.min_routine_length <= args.max_routine_length,
              f"≤ --max-routine-length ({args.max_routine_length})")]
 

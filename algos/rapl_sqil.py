@@ -53,13 +53,13 @@ from torch.distributions.categorical import Categorical
 import routine_gym
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_env
-from routine_gym.evaluation import evaluate_policy, save_evaluation
 from routine_gym.imitation import agent_view_states, build_demo_transitions, sqil_target
 from routine_gym.library import RoutineLibrary
-from routine_gym.loading import check_demo_env, load_demo, load_routines
 from routine_gym.networks import ObservationEncoder, layer_init
+from routine_gym.plumbing.evaluation import evaluate_policy, save_evaluation
+from routine_gym.plumbing.loading import check_demo_env, load_demo, load_routines
+from routine_gym.plumbing.run import Every, run_script, start_run
 from routine_gym.replay_memory import FrameReplayMemory
-from routine_gym.run import Every, run_script, start_run
 
 
 @dataclass
@@ -152,7 +152,8 @@ CHECKPOINT_KEYS = ("model", "target", "optimizer", "global_step", "updates", "rn
 
 
 def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
-    """SQIL's rule on top of `routine_gym.run.DOMAINS`: a batch is half demo, half agent."""
+    """SQIL's rule on top of `routine_gym.plumbing.run.DOMAINS`: a batch is half demo, half
+    agent."""
     return [("batch_size", args.batch_size >= 2, "≥ 2 (half demo, half agent)")]
 
 

@@ -11,7 +11,7 @@ each with `--env-id G --seed S --total-timesteps N --eval-episodes E --checkpoin
 has its `eval.json` is skipped and one that has a checkpoint is resumed (`--resume`), so the
 same command continues after a kill. The table gives the mean ± sample standard deviation over
 seeds of the per-run mean evaluation return, every seed's, and the uniformly random policy's
-score over the same number of episodes (`routine_gym.evaluation.random_policy_scores`).
+score over the same number of episodes (`routine_gym.plumbing.evaluation.random_policy_scores`).
 
 Usage:
     python bench/bench_baselines.py                                   # 2 games, 3 seeds, 1M steps
@@ -35,8 +35,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import base_machine_info, load_average  # noqa: E402
 
 import routine_gym  # noqa: E402
-from routine_gym.atomic import atomic_write_text  # noqa: E402
-from routine_gym.evaluation import random_policy_scores  # noqa: E402
+from routine_gym.plumbing.atomic import atomic_write_text  # noqa: E402
+from routine_gym.plumbing.evaluation import random_policy_scores  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 #: method -> (script, extra arguments)

@@ -55,7 +55,7 @@ from gymnasium import spaces
 from gymnasium.wrappers import RecordEpisodeStatistics, RepeatAction, TimeLimit
 
 import routine_gym
-from routine_gym.atomic import atomic_write_text
+from routine_gym.plumbing.atomic import atomic_write_text
 from routine_gym.wrapper import RoutineActionWrapper
 
 REPO = Path(__file__).resolve().parents[1]

@@ -64,8 +64,8 @@ def _load_demo(path: str):
 
 
 def cmd_mine(args: argparse.Namespace) -> int:
-    from routine_gym.atomic import check_writable
     from routine_gym.mining import make_proposer
+    from routine_gym.plumbing.atomic import check_writable
 
     _needs("--num-routines", args.num_routines, args.num_routines >= 1, "≥ 1")
     _needs("--length-weight", args.length_weight, args.length_weight >= 0, "≥ 0")
@@ -145,9 +145,9 @@ def _file_version(path: Path) -> int:
 
 
 def cmd_upgrade(args: argparse.Namespace) -> int:
-    from routine_gym.atomic import check_writable
     from routine_gym.demo import DEMO_VERSION, DemoReplayError, upgrade_demo
     from routine_gym.envs.factory import recording_stacks
+    from routine_gym.plumbing.atomic import check_writable
 
     out = args.out or args.demo  # in place by default: only a verified replay replaces it
     check_writable(out, "--out")
@@ -268,8 +268,8 @@ def _resolve_policy(spec: str, env, noise: float = 0.0, seed: int = 0) -> Callab
 
 
 def cmd_record(args: argparse.Namespace) -> int:
-    from routine_gym.atomic import check_writable
     from routine_gym.envs import make_env
+    from routine_gym.plumbing.atomic import check_writable
 
     _needs("--episodes", args.episodes, args.episodes >= 1, "≥ 1")
     _needs("--seed", args.seed, args.seed >= 0, "≥ 0")
@@ -304,8 +304,8 @@ def cmd_record(args: argparse.Namespace) -> int:
 
 
 def cmd_play(args: argparse.Namespace) -> int:
-    from routine_gym.atomic import check_writable
     from routine_gym.demo import record_human_demo
+    from routine_gym.plumbing.atomic import check_writable
 
     _needs("--episodes", args.episodes, args.episodes >= 1, "≥ 1")
     _needs("--seed", args.seed, args.seed >= 0, "≥ 0")
@@ -444,7 +444,7 @@ def cmd_experiment_report(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from routine_gym.errors import debug_requested, one_line
+    from routine_gym.plumbing.errors import debug_requested, one_line
 
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = debug_requested(argv)

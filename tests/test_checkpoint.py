@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from routine_gym.checkpoint import CHECKPOINT_NAME, load_checkpoint, write_checkpoint
+from routine_gym.plumbing.checkpoint import CHECKPOINT_NAME, load_checkpoint, write_checkpoint
 
 
 def test_a_checkpoint_round_trips_from_its_file_or_its_run_folder(tmp_path):
@@ -34,7 +34,7 @@ def test_resume_settings_keep_the_saved_run_and_apply_the_budget_rule(tmp_path):
     import dataclasses
     import json
 
-    from routine_gym.checkpoint import resume_settings
+    from routine_gym.plumbing.checkpoint import resume_settings
 
     @dataclasses.dataclass
     class Args:

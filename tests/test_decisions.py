@@ -27,11 +27,11 @@ from routine_gym.demo import (
 )
 from routine_gym.envs.atari import FireOnLifeLoss, FireReset, NoopReset
 from routine_gym.envs.factory import default_env_kwargs, preprocess
-from routine_gym.evaluation import evaluate_policy
 from routine_gym.imitation import build_demo_transitions, decision_steps
 from routine_gym.library import RoutineLibrary
 from routine_gym.metrics import alignment_score
 from routine_gym.mining import SequiturMiner
+from routine_gym.plumbing.evaluation import evaluate_policy
 from routine_gym.wrapper import RoutineActionWrapper
 
 QBERT = "ALE/Qbert-v5"

@@ -14,7 +14,7 @@ import torch
 from script_loader import load_script
 
 import routine_gym  # noqa: F401  (registers MiniQbert-v0)
-from routine_gym.run import Run
+from routine_gym.plumbing.run import Run
 
 SCRIPTS = {name: load_script(name, f"algos_{name}_resume") for name in ("bc", "gail")}
 # Tiny budgets on MiniQbert; GAIL's iterations are 2 envs × 16 steps = 32 primitive steps.

@@ -25,8 +25,6 @@ from hypothesis import strategies as st
 
 from routine_gym import cli
 from routine_gym.demo import Demo, shipped_demo_path
-from routine_gym.errors import UsageError
-from routine_gym.loading import load_routines
 from routine_gym.mining import (
     MAX_ROUTINE_LENGTH,
     PROPOSERS,
@@ -34,7 +32,9 @@ from routine_gym.mining import (
     make_proposer,
 )
 from routine_gym.occurrences import OccurrenceIndex
-from routine_gym.run import check_args
+from routine_gym.plumbing.errors import UsageError
+from routine_gym.plumbing.loading import load_routines
+from routine_gym.plumbing.run import check_args
 from routine_gym.sequitur import induce
 
 REPO = Path(__file__).resolve().parent.parent

@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from routine_gym.errors import UsageError
 from routine_gym.experiments import (
     backends,
     drawing,
@@ -27,6 +26,7 @@ from routine_gym.experiments import (
 )
 from routine_gym.experiments.paper import ablation
 from routine_gym.metrics import iqm
+from routine_gym.plumbing.errors import UsageError
 
 BREAKOUT = "MinAtar/Breakout-v1"  # demo-normalised: random 0, demo 10
 ASTERIX = "MinAtar/Asterix-v1"  # demo-normalised: random 1, demo 21

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from routine_gym.rng import rng_state, set_rng_state
+from routine_gym.plumbing.rng import rng_state, set_rng_state
 
 
 def draw(generator: np.random.Generator) -> tuple:

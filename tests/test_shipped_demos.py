@@ -21,8 +21,8 @@ from routine_gym.demo import (
     shipped_demo_path,
 )
 from routine_gym.envs import env_family
-from routine_gym.loading import load_demo
 from routine_gym.mining import SequiturMiner
+from routine_gym.plumbing.loading import load_demo
 
 SHIPPED = sorted(glob.glob(os.path.join(DEMOS_DIR, "*.npz")))
 

@@ -19,7 +19,6 @@ from pathlib import Path
 
 import pytest
 
-from routine_gym.errors import UsageError
 from routine_gym.experiments import (
     backends,
     folder_lock,
@@ -32,6 +31,7 @@ from routine_gym.experiments import (
     sweep,
 )
 from routine_gym.experiments.specs import RunSpec
+from routine_gym.plumbing.errors import UsageError
 
 CLI = [sys.executable, "-m", "routine_gym.cli"]
 BREAKOUT = "MinAtar/Breakout-v1"

@@ -24,11 +24,11 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from routine_gym.atomic import atomic_write_text
-from routine_gym.errors import UsageError, one_line
 from routine_gym.experiments import read_json_object, utc_now
 from routine_gym.experiments.results import result_problem
 from routine_gym.experiments.training_curves import CURVE_BINS, curve_bins, read_episodic_returns
+from routine_gym.plumbing.atomic import atomic_write_text
+from routine_gym.plumbing.errors import UsageError, one_line
 
 __all__ = ["LocalBackend", "RayBackend", "command", "execute_run", "install_signal_handlers",
            "file_tail", "script_path"]

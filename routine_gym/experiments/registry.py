@@ -14,10 +14,10 @@ from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
-from routine_gym.errors import UsageError
 from routine_gym.experiments.experiment import Experiment
 from routine_gym.experiments.paper import ablation, coinrun, curves, imitation, rl, scalability
 from routine_gym.experiments.specs import BUDGETS, Builder, Entry
+from routine_gym.plumbing.errors import UsageError
 
 __all__ = ["EXPERIMENTS", "build", "count_runs", "games", "left_out", "register"]
 

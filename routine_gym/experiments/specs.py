@@ -171,7 +171,7 @@ def shipped_demo_has_routine(env_id: str, min_length: int) -> bool:
     finds none fails naming the reason)."""
     import warnings
 
-    from routine_gym.loading import load_demo, load_routines
+    from routine_gym.plumbing.loading import load_demo, load_routines
 
     if not has_shipped_demo(env_id):
         return True

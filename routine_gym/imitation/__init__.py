@@ -8,8 +8,8 @@ and `algos/gail.py` share (SPEC §5–6), a module each.
 - `soft_q`: SQIL's soft target `R_sq + Γ·α·logsumexp(Q(s', ·)/α)` (`sqil_target`).
 
 The agent's replay memory is `routine_gym.replay_memory.FrameReplayMemory`; loading the demo
-and the routines is `routine_gym.loading`; the evaluation all scripts share is
-`routine_gym.evaluation`.
+and the routines is `routine_gym.plumbing.loading`; the evaluation all scripts share is
+`routine_gym.plumbing.evaluation`.
 """
 
 from routine_gym.imitation.agent_view import (

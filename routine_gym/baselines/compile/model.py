@@ -21,7 +21,6 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from routine_gym.atomic import atomic_write_bytes
 from routine_gym.baselines.compile.elbo import (
     EPS,
     NEG_INF,
@@ -32,6 +31,7 @@ from routine_gym.baselines.compile.elbo import (
     segment_probabilities,
 )
 from routine_gym.networks import ObservationEncoder, layer_init
+from routine_gym.plumbing.atomic import atomic_write_bytes
 
 __all__ = [
     "CompILE",

@@ -194,7 +194,7 @@ def option_primitive_policy(
 ) -> Callable[[np.ndarray, gym.Env], int]:
     """A policy of primitive actions that runs a controller's options itself, one step a call.
 
-    For `routine_gym.evaluation.evaluate_policy` (and `record_agent_demo`), which take a
+    For `routine_gym.plumbing.evaluation.evaluate_policy` (and `record_agent_demo`), which take a
     policy of the env's own actions: when `controller(obs)` picks `num_actions + k`, the
     returned policy plays option `k`'s steps on the following calls exactly as
     `OptionActionWrapper` would, and asks the controller again when the option ends. The

@@ -1,12 +1,12 @@
 """Errors a user can make, and how every script and CLI command reports them.
 
-`UsageError` is a user's mistake (a bad file, a bad flag or value, an env the scripts cannot
-handle, a bad checkpoint). It subclasses `ValueError`, so library callers that catch
-`ValueError` still do. The scripts in `algos/` (through `routine_gym.run.run_script`) and the
-`routine-gym` command print it as one line on stderr, `SCRIPT: error: MESSAGE`, and exit with
-code 2, without a traceback; so do Gymnasium's own errors (an unknown env id) and a missing
-file. `--debug` (or `ROUTINE_GYM_DEBUG=1` in the environment) shows the traceback instead.
-Anything else is a bug and keeps its traceback.
+`UsageError` is a user's mistake (a bad file, a bad flag or value, an env the scripts cannot handle,
+a bad checkpoint). It subclasses `ValueError`, so library callers that catch `ValueError` still do.
+The scripts in `algos/` (through `routine_gym.plumbing.run.run_script`) and the `routine-gym`
+command print it as one line on stderr, `SCRIPT: error: MESSAGE`, and exit with code 2, without a
+traceback; so do Gymnasium's own errors (an unknown env id) and a missing file. `--debug` (or
+`ROUTINE_GYM_DEBUG=1` in the environment) shows the traceback instead. Anything else is a bug and
+keeps its traceback.
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
 """Resumable checkpoints of the training scripts: written atomically, read without unpickling.
 
 Every script in `algos/` saves a dict of tensors, numbers and strings (its `Args` as JSON, RNG
-states from :mod:`routine_gym.rng`) with :func:`write_checkpoint`, and `--resume` reads it back
-with :func:`resume_settings`. Its :func:`load_checkpoint` accepts a checkpoint file or the run
+states from :mod:`routine_gym.plumbing.rng`) with :func:`write_checkpoint`, and `--resume` reads it
+back with :func:`resume_settings`. Its :func:`load_checkpoint` accepts a checkpoint file or the run
 folder holding one and turns every way of getting it wrong into an error that names the path.
 """
 
@@ -18,8 +18,8 @@ from typing import Any
 
 import torch
 
-from routine_gym.atomic import atomic_write_bytes
-from routine_gym.errors import UsageError
+from routine_gym.plumbing.atomic import atomic_write_bytes
+from routine_gym.plumbing.errors import UsageError
 
 __all__ = ["CHECKPOINT_NAME", "load_checkpoint", "resume_settings", "write_checkpoint"]
 

@@ -7,7 +7,7 @@ saved `Args`, the checkpoint, the run's own folder), makes the run folder
 hyper-parameter table, seeds Python, NumPy and torch (and a `numpy.random.Generator` for the
 script's own draws), sets torch's threads and picks the device. The `Run` it returns saves
 checkpoints (with every RNG state and the `Args` as JSON) and the model through the one atomic
-writer of `routine_gym.atomic`.
+writer of `routine_gym.plumbing.atomic`.
 
 `check_args(args)` is the one argument check: every numeric flag with a domain, by its field
 name, with Gymnasium-style messages that name the flag and the bad value
@@ -31,10 +31,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from routine_gym.atomic import atomic_write_bytes, check_folder, check_writable
-from routine_gym.checkpoint import CHECKPOINT_NAME, resume_settings, write_checkpoint
-from routine_gym.errors import UsageError
-from routine_gym.rng import rng_state, set_rng_state
+from routine_gym.plumbing.atomic import atomic_write_bytes, check_folder, check_writable
+from routine_gym.plumbing.checkpoint import CHECKPOINT_NAME, resume_settings, write_checkpoint
+from routine_gym.plumbing.errors import UsageError
+from routine_gym.plumbing.rng import rng_state, set_rng_state
 
 __all__ = [
     "Every",
@@ -138,7 +138,7 @@ def check_args(args: Any, extra: ExtraChecks = ()) -> None:
         >>> check_args(Args())
         Traceback (most recent call last):
         ...
-        routine_gym.errors.UsageError: --gamma needs to be in (0, 1], actual value: 1.5
+        routine_gym.plumbing.errors.UsageError: --gamma needs to be in (0, 1], actual value: 1.5
     """
     for f in fields(args):
         if f.name not in DOMAINS:
@@ -209,9 +209,9 @@ def _tyro_message(box: str) -> str:
 def run_script(main: Callable[[Any], Any], args_type: type,
                renamed: dict[str, str] | None = None) -> None:
     """A script's entry point: parse its flags and run `main`, reporting a user's mistakes
-    (`routine_gym.errors`) as one line on stderr with exit code 2; `--debug` (or
+    (`routine_gym.plumbing.errors`) as one line on stderr with exit code 2; `--debug` (or
     `ROUTINE_GYM_DEBUG=1`) shows their traceback instead. A bug keeps its traceback."""
-    from routine_gym.errors import debug_requested, expected_errors, one_line
+    from routine_gym.plumbing.errors import debug_requested, expected_errors, one_line
 
     argv = sys.argv[1:]
     debug = debug_requested(argv)
