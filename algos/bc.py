@@ -29,7 +29,6 @@ from torch.distributions.categorical import Categorical
 import routine_gym
 from routine_gym.imitation import agent_view_states, demo_pairs
 from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.plumbing.evaluation import evaluate_policy, save_evaluation
 from routine_gym.plumbing.loading import check_demo_env, load_demo
 from routine_gym.plumbing.run import run_script, start_run
 
@@ -109,17 +108,8 @@ def main(args: Args) -> dict | None:
     policy = Policy(args.env_id, pairs.states.shape[1:], pairs.states.dtype, num_actions).to(device)
     optimizer = torch.optim.Adam(policy.parameters(), lr=args.learning_rate, fused=True)
 
-    step = 0
-    if run.checkpoint is not None:
-        run.restore(policy, "model")
-        run.restore(optimizer, "optimizer")
-        step = run.checkpoint["step"]
-        run.restore_rng()
-        print(f"resumed {run.name} at step {step}")
-
-    def save_checkpoint() -> None:
-        run.save_checkpoint({"model": policy.state_dict(), "optimizer": optimizer.state_dict(),
-                             "step": step})
+    # What a checkpoint holds; a resumed run starts where its checkpoint left off.
+    step = run.resume({"model": policy, "optimizer": optimizer}, step=0)
 
     start_time, start_step = time.time(), step
     while step < args.gradient_steps:
@@ -139,29 +129,17 @@ def main(args: Args) -> dict | None:
         if step % args.log_every == 0 or step == args.gradient_steps:
             print(f"step {step:>8,d}/{args.gradient_steps:,d}  loss {loss.item():.4f}  "
                   f"SPS {sps}", flush=True)
-        if args.checkpoint_every > 0 and step % args.checkpoint_every == 0:
-            save_checkpoint()
+        run.checkpoint_if_due(step=step)
 
-    if args.checkpoint_every > 0:
-        save_checkpoint()
-    if args.save_model:
-        run.save_model(policy)
+    def act(observation: np.ndarray) -> int:
+        with torch.no_grad():
+            logits = policy(torch.as_tensor(np.asarray(observation)[None], device=device))[0]
+        if args.eval_greedy:
+            return int(logits.argmax())
+        return int(Categorical(logits=logits).sample())
 
-    summary = None
-    if args.eval_episodes > 0:
-        def act(observation: np.ndarray) -> int:
-            with torch.no_grad():
-                logits = policy(torch.as_tensor(np.asarray(observation)[None], device=device))[0]
-            if args.eval_greedy:
-                return int(logits.argmax())
-            return int(Categorical(logits=logits).sample())
-
-        summary = evaluate_policy(args.env_id, act, args.eval_episodes, seed=args.seed + 10_000,
-                                  demo=demo, max_steps=args.eval_max_steps)
-        summary.update(method="bc", global_step=step)
-        save_evaluation(summary, run.path, writer, step)
-    writer.close()
-    return summary
+    return run.finish(act, model=policy, method="bc", demo=demo, max_steps=args.eval_max_steps,
+                      step=step)
 
 
 if __name__ == "__main__":

@@ -74,7 +74,6 @@ from routine_gym.envs.factory import make_env
 from routine_gym.imitation.agent_view import agent_view_states, decision_steps
 from routine_gym.networks import ObservationEncoder, layer_init
 from routine_gym.plumbing.errors import UsageError
-from routine_gym.plumbing.evaluation import evaluate_policy, save_evaluation
 from routine_gym.plumbing.loading import load_demo
 from routine_gym.plumbing.run import Every, eval_env_kwargs, run_script, start_run, train_env_kwargs
 from routine_gym.returns import decision_returns, macro_reward_and_discount
@@ -319,22 +318,11 @@ def main(args: Args) -> dict | None:
     truncated = np.zeros((n, e), dtype=bool)
     final_values = np.zeros((n, e), dtype=np.float64)
 
-    global_step, iteration = 0, 0
-    if run.checkpoint is not None:
-        agent.load_state_dict(run.checkpoint["model"])
-        optimizer.load_state_dict(run.checkpoint["optimizer"])
-        global_step, iteration = run.checkpoint["global_step"], run.checkpoint["iteration"]
-        run.restore_rng()
-        print(f"resumed {run.name} at step {global_step}")
-
-    def save_checkpoint() -> None:
-        run.save_checkpoint({
-            "model": agent.state_dict(), "optimizer": optimizer.state_dict(),
-            "global_step": global_step, "iteration": iteration,
-            "compile": compile_state(compile_model, meta),
-        })
-
-    checkpoints = Every(args.checkpoint_every, start=global_step)
+    # What a checkpoint holds (the options' model with it); a resumed run starts where its
+    # checkpoint left off.
+    global_step, iteration = run.resume({"model": agent, "optimizer": optimizer},
+                                        global_step=0, iteration=0,
+                                        extra={"compile": compile_state(compile_model, meta)})
 
     # The env is reset with a seed that depends on where the run is, so a resumed run does not
     # replay the episodes it already saw.
@@ -427,34 +415,23 @@ def main(args: Args) -> dict | None:
             print(f"step {global_step:>10,d}/{args.total_timesteps:,d}  SPS {sps:>5d}  "
                   f"return(last 20) {mean_ret:>8s}  episodes {len(recent_returns):>5d}  "
                   f"option use {usage[num_primitives:].sum():5.1%}", flush=True)
-        if checkpoints.due(global_step):
-            save_checkpoint()
+        run.checkpoint_if_due(global_step=global_step, iteration=iteration)
 
     envs.close()
-    if args.checkpoint_every > 0:
-        save_checkpoint()
-    if args.save_model:
-        run.save_model(agent)
 
-    summary = None
-    if args.eval_episodes > 0:
-        def controller(obs: np.ndarray) -> int:
-            with torch.no_grad():
-                action, _, _, _ = agent.get_action_and_value(
-                    torch.as_tensor(np.asarray(obs)[None], device=device))
-            return int(action[0])
+    def controller(obs: np.ndarray) -> int:
+        with torch.no_grad():
+            action, _, _, _ = agent.get_action_and_value(
+                torch.as_tensor(np.asarray(obs)[None], device=device))
+        return int(action[0])
 
-        # Full games on the evaluation view (Procgen: unseen levels), aligned with the demo.
-        # evaluate_policy takes primitive actions, so the policy runs the options itself.
-        policy = option_primitive_policy(controller, options, max_len, num_primitives)
-        summary = evaluate_policy(args.env_id, policy, args.eval_episodes,
-                                  seed=args.seed + 10_000, demo=demo,
-                                  env_kwargs=eval_env_kwargs(args))
-        summary.update(method="compile", global_step=global_step, option_codes=codes,
-                       option_max_length=max_len)
-        save_evaluation(summary, run.path, writer, global_step)
-    writer.close()
-    return summary
+    # Full games on the evaluation view (Procgen: unseen levels), aligned with the demo.
+    # evaluate_policy takes primitive actions, so the policy runs the options itself.
+    policy = option_primitive_policy(controller, options, max_len, num_primitives)
+    return run.finish(policy, model=agent, method="compile",
+                      summary={"option_codes": codes, "option_max_length": max_len}, demo=demo,
+                      env_kwargs=eval_env_kwargs(args), global_step=global_step,
+                      iteration=iteration)
 
 
 if __name__ == "__main__":

@@ -40,7 +40,6 @@ import routine_gym
 from routine_gym.envs.factory import make_env
 from routine_gym.imitation import agent_view_states, demo_pairs
 from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.plumbing.evaluation import evaluate_policy, save_evaluation
 from routine_gym.plumbing.loading import check_demo_env, load_demo
 from routine_gym.plumbing.run import Every, run_script, start_run
 
@@ -195,24 +194,10 @@ def main(args: Args) -> dict | None:
     dones = torch.zeros((args.num_steps, args.num_envs), device=device)
     values = torch.zeros((args.num_steps, args.num_envs), device=device)
 
-    global_step = 0
-    if run.checkpoint is not None:
-        run.restore(agent, "agent")
-        run.restore(discriminator, "discriminator")
-        run.restore(optimizer, "optimizer")
-        run.restore(disc_optimizer, "disc_optimizer")
-        global_step = run.checkpoint["global_step"]
-        run.restore_rng()
-        print(f"resumed {run.name} at step {global_step}")
-
-    def save_checkpoint() -> None:
-        run.save_checkpoint({
-            "agent": agent.state_dict(), "discriminator": discriminator.state_dict(),
-            "optimizer": optimizer.state_dict(), "disc_optimizer": disc_optimizer.state_dict(),
-            "global_step": global_step,
-        })
-
-    checkpoints = Every(args.checkpoint_every, start=global_step)
+    # What a checkpoint holds; a resumed run starts where its checkpoint left off.
+    global_step = run.resume({"agent": agent, "discriminator": discriminator,
+                              "optimizer": optimizer, "disc_optimizer": disc_optimizer},
+                             global_step=0)
 
     start_time, start_step = time.time(), global_step
     logs = Every(args.log_every, start=global_step)
@@ -353,32 +338,21 @@ def main(args: Args) -> dict | None:
                   f"SPS {sps:>5d}  return(last 20) {mean_ret:>8s}  "
                   f"disc loss {disc_loss.item():.3f}  gail reward {rewards.mean().item():.3f}",
                   flush=True)
-        if checkpoints.due(global_step):
-            save_checkpoint()
+        run.checkpoint_if_due(global_step=global_step)
 
     envs.close()
-    if args.checkpoint_every > 0:
-        save_checkpoint()
-    if args.save_model:
-        run.save_model({"agent": agent, "discriminator": discriminator})
 
-    summary = None
-    if args.eval_episodes > 0:
-        def act(observation: np.ndarray) -> int:
-            with torch.no_grad():
-                hidden = agent.encoder(torch.as_tensor(np.asarray(observation)[None],
-                                                       device=device))
-                logits = agent.actor(hidden)[0]
-            if args.eval_greedy:
-                return int(logits.argmax())
-            return int(Categorical(logits=logits).sample())
+    def act(observation: np.ndarray) -> int:
+        with torch.no_grad():
+            hidden = agent.encoder(torch.as_tensor(np.asarray(observation)[None], device=device))
+            logits = agent.actor(hidden)[0]
+        if args.eval_greedy:
+            return int(logits.argmax())
+        return int(Categorical(logits=logits).sample())
 
-        summary = evaluate_policy(args.env_id, act, args.eval_episodes, seed=args.seed + 10_000,
-                                  demo=demo, max_steps=args.eval_max_steps)
-        summary.update(method="gail", global_step=global_step)
-        save_evaluation(summary, run.path, writer, global_step)
-    writer.close()
-    return summary
+    return run.finish(act, model={"agent": agent, "discriminator": discriminator},
+                      method="gail", demo=demo, max_steps=args.eval_max_steps,
+                      global_step=global_step)
 
 
 if __name__ == "__main__":

@@ -46,7 +46,6 @@ from routine_gym.baselines.option_critic import (
 )
 from routine_gym.envs.factory import make_env
 from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.plumbing.evaluation import evaluate_policy, save_evaluation
 from routine_gym.plumbing.run import Every, eval_env_kwargs, run_script, start_run, train_env_kwargs
 
 
@@ -179,19 +178,9 @@ def main(args: Args) -> dict | None:
     optimizer = torch.optim.RMSprop(agent.parameters(), lr=args.learning_rate,
                                     alpha=args.rmsprop_alpha, eps=args.rmsprop_eps)
 
-    global_step, iteration = 0, 0
-    if run.checkpoint is not None:
-        run.restore(agent, "model")
-        run.restore(optimizer, "optimizer")
-        global_step, iteration = run.checkpoint["global_step"], run.checkpoint["iteration"]
-        run.restore_rng()
-        print(f"resumed {run.name} at step {global_step}")
-
-    def save_checkpoint() -> None:
-        run.save_checkpoint({"model": agent.state_dict(), "optimizer": optimizer.state_dict(),
-                             "global_step": global_step, "iteration": iteration})
-
-    checkpoints = Every(args.checkpoint_every, start=global_step)
+    # What a checkpoint holds; a resumed run starts where its checkpoint left off.
+    global_step, iteration = run.resume({"model": agent, "optimizer": optimizer},
+                                        global_step=0, iteration=0)
     logs = Every(args.log_every, start=global_step)
     n, e = args.num_steps, args.num_envs
     rewards = np.zeros((n, e), dtype=np.float64)
@@ -310,40 +299,30 @@ def main(args: Args) -> dict | None:
                   f"SPS {int((global_step - start_step) / elapsed):>5d}  "
                   f"return(last 20) {mean_ret:>8s}  episodes {len(recent_returns):>5d}  "
                   f"option duration {duration:5.1f}", flush=True)
-        if checkpoints.due(global_step):
-            save_checkpoint()
+        run.checkpoint_if_due(global_step=global_step, iteration=iteration)
 
     envs.close()
-    if args.checkpoint_every > 0:
-        save_checkpoint()
-    if args.save_model:
-        run.save_model(agent)
 
-    summary = None
-    if args.eval_episodes > 0:
-        # The evaluated policy carries its running option from step to step and chooses a new
-        # one at the start of each episode (the evaluation env counts its episodes).
-        eval_rng = np.random.default_rng(args.seed + 10_000)
-        state = {"option": 0, "episode": -1}
+    # The evaluated policy carries its running option from step to step and chooses a new one
+    # at the start of each episode (the evaluation env counts its episodes).
+    eval_rng = np.random.default_rng(args.seed + 10_000)
+    state = {"option": 0, "episode": -1}
 
-        def policy(obs: np.ndarray, env: gym.Env) -> int:
-            with torch.no_grad():
-                q, logits, beta = agent(torch.as_tensor(np.asarray(obs)[None], device=device))
-            episode = env.get_wrapper_attr("episode_count")
-            start = episode != state["episode"]
-            ends = start or eval_rng.random() < float(beta[0, state["option"]])
-            state["option"] = int(choose_options(q.cpu().numpy(), np.array([state["option"]]),
-                                                 np.array([ends]), args.option_epsilon,
-                                                 eval_rng)[0])
-            state["episode"] = episode
-            return int(Categorical(logits=logits[0, state["option"]]).sample())
+    def policy(obs: np.ndarray, env: gym.Env) -> int:
+        with torch.no_grad():
+            q, logits, beta = agent(torch.as_tensor(np.asarray(obs)[None], device=device))
+        episode = env.get_wrapper_attr("episode_count")
+        start = episode != state["episode"]
+        ends = start or eval_rng.random() < float(beta[0, state["option"]])
+        state["option"] = int(choose_options(q.cpu().numpy(), np.array([state["option"]]),
+                                             np.array([ends]), args.option_epsilon,
+                                             eval_rng)[0])
+        state["episode"] = episode
+        return int(Categorical(logits=logits[0, state["option"]]).sample())
 
-        summary = evaluate_policy(args.env_id, policy, args.eval_episodes,
-                                  seed=args.seed + 10_000, env_kwargs=eval_env_kwargs(args))
-        summary.update(method="option-critic", global_step=global_step)
-        save_evaluation(summary, run.path, writer, global_step)
-    writer.close()
-    return summary
+    return run.finish(policy, model=agent, method="option-critic",
+                      env_kwargs=eval_env_kwargs(args), global_step=global_step,
+                      iteration=iteration)
 
 
 if __name__ == "__main__":

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import json
 import os
-import sys
 import time
 import warnings
 from dataclasses import dataclass
@@ -37,16 +36,9 @@ import torch.nn as nn
 from torch.distributions.categorical import Categorical
 
 import routine_gym
-from routine_gym.demo import record_agent_demo
-from routine_gym.envs.factory import (
-    default_env_kwargs,
-    make_env,
-    make_primitive_env,
-    preprocess,
-)
+from routine_gym.envs.factory import make_env, make_primitive_env
 from routine_gym.library import RoutineLibrary
 from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.plumbing.evaluation import evaluate_policy, save_evaluation
 from routine_gym.plumbing.loading import load_demo, load_routines
 from routine_gym.plumbing.run import (
     Every,
@@ -260,22 +252,10 @@ def main(args: Args) -> None:
     final_values = np.zeros((n, e), dtype=np.float64)
     inner_obs = np.zeros((n, max(max_len - 1, 1), e, *obs_shape), dtype=obs_dtype)
 
-    global_step, iteration = 0, 0
-    if run.checkpoint is not None:
-        run.restore(agent, "model")
-        run.restore(optimizer, "optimizer")
-        global_step, iteration = run.checkpoint["global_step"], run.checkpoint["iteration"]
-        run.restore_rng()
-        print(f"resumed {run.name} at step {global_step}")
-
-    def save_checkpoint() -> None:
-        run.save_checkpoint({
-            "model": agent.state_dict(), "optimizer": optimizer.state_dict(),
-            "global_step": global_step, "iteration": iteration,
-            "library": json.dumps(library.to_dict()) if library is not None else "",
-        })
-
-    checkpoints = Every(args.checkpoint_every, start=global_step)
+    # What a checkpoint holds; a resumed run starts where its checkpoint left off.
+    global_step, iteration = run.resume(
+        {"model": agent, "optimizer": optimizer}, global_step=0, iteration=0,
+        extra={"library": json.dumps(library.to_dict()) if library is not None else ""})
 
     # The env is reset with a seed that depends on where the run is, so a resumed run does not
     # replay the episodes it already saw.
@@ -392,14 +372,9 @@ def main(args: Args) -> None:
                   f"SPS {int((global_step - start_step) / elapsed):>5d}  "
                   f"return(last 20) {mean_ret:>8s}  episodes {len(recent_returns):>5d}  "
                   f"routine use {usage:5.1%}", flush=True)
-        if checkpoints.due(global_step):
-            save_checkpoint()
+        run.checkpoint_if_due(global_step=global_step, iteration=iteration)
 
     envs.close()
-    if args.checkpoint_every > 0:
-        save_checkpoint()
-    if args.save_model:
-        run.save_model(agent)
 
     def policy(obs):
         with torch.no_grad():
@@ -407,38 +382,10 @@ def main(args: Args) -> None:
                 torch.as_tensor(np.asarray(obs)[None], device=device))
         return int(action[0])
 
-    if args.eval_episodes > 0:
-        # Full games on the evaluation view (Procgen: unseen levels); aligned with the demo the
-        # routines came from, when there is one.
-        summary = evaluate_policy(args.env_id, policy, args.eval_episodes,
-                                  seed=args.seed + 10_000, demo=demo, routines=library,
-                                  env_kwargs=eval_env_kwargs(args))
-        summary.update(method=args.mode, global_step=global_step)
-        save_evaluation(summary, run.path, writer, global_step)
-        for levels in args.extra_evals:
-            summary = evaluate_policy(args.env_id, policy, args.eval_episodes,
-                                      seed=args.seed + 10_000, routines=library,
-                                      env_kwargs=level_env_kwargs(args, levels))
-            summary.update(method=args.mode, global_step=global_step, levels=levels)
-            save_evaluation(summary, run.path, writer, global_step, name=f"eval-{levels}")
-
-    if args.record_demo:
-        def wrap(env):
-            return preprocess(gym.wrappers.RecordEpisodeStatistics(env), args.env_id,
-                              training=False)
-
-        # The demo marks the agent's decisions (each step of a chosen routine included) apart
-        # from the steps the preprocessing injects (no-op start, FIRE, served lives).
-        demo = record_agent_demo(
-            args.env_id, policy, num_episodes=args.demo_episodes, seed=args.seed + 20_000,
-            env_kwargs={**default_env_kwargs(args.env_id), **train_env_kwargs(args)},
-            wrap_env=wrap, routines=library,
-            meta={"trained_steps": global_step, "command": " ".join(sys.argv),
-                  "mode": args.mode, "run": run.name},
-        )
-        demo.save(args.record_demo, include_observations=False)
-        print(f"demo saved to {args.record_demo}: score {demo.score:g}, {len(demo)} steps")
-    writer.close()
+    # Full games on the evaluation view (Procgen: unseen levels), aligned with the demo the
+    # routines came from when there is one; then --extra-evals and --record-demo.
+    run.finish(policy, model=agent, method=args.mode, demo=demo, routines=library,
+               env_kwargs=eval_env_kwargs(args), global_step=global_step, iteration=iteration)
 
 
 if __name__ == "__main__":

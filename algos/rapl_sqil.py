@@ -56,7 +56,6 @@ from routine_gym.envs.factory import make_env
 from routine_gym.imitation import agent_view_states, build_demo_transitions, sqil_target
 from routine_gym.library import RoutineLibrary
 from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.plumbing.evaluation import evaluate_policy, save_evaluation
 from routine_gym.plumbing.loading import check_demo_env, load_demo, load_routines
 from routine_gym.plumbing.run import Every, run_script, start_run
 from routine_gym.replay_memory import FrameReplayMemory
@@ -200,23 +199,11 @@ def main(args: Args) -> dict | None:
                                frame_stack=profile_for(args.env_id).frame_stack)
     half = args.batch_size // 2
 
-    global_step, updates = 0, 0
-    if run.checkpoint is not None:
-        run.restore(q_network, "model")
-        run.restore(target_network, "target")
-        run.restore(optimizer, "optimizer")
-        global_step, updates = run.checkpoint["global_step"], run.checkpoint["updates"]
-        run.restore_rng()
-        print(f"resumed {run.name} at step {global_step}")
-
-    def save_checkpoint() -> None:
-        run.save_checkpoint({
-            "model": q_network.state_dict(), "target": target_network.state_dict(),
-            "optimizer": optimizer.state_dict(), "global_step": global_step, "updates": updates,
-            "library": json.dumps(library.to_dict()) if library is not None else "",
-        })
-
-    checkpoints = Every(args.checkpoint_every, start=global_step)
+    # What a checkpoint holds; a resumed run starts where its checkpoint left off.
+    global_step, updates = run.resume(
+        {"model": q_network, "target": target_network, "optimizer": optimizer},
+        global_step=0, updates=0,
+        extra={"library": json.dumps(library.to_dict()) if library is not None else ""})
     learning_starts = global_step + args.learning_starts  # a resumed run refills its memory first
     session_updates = 0  # updates of this process (a resumed run also counts the earlier ones)
 
@@ -306,31 +293,21 @@ def main(args: Args) -> dict | None:
                   f"SPS {int((global_step - start_step) / elapsed):>5d}  "
                   f"return(last 20) {mean_ret:>8s}  episodes {len(recent_returns):>5d}  "
                   f"updates {updates:>7d}  routine use {usage:5.1%}", flush=True)
-        if checkpoints.due(global_step):
-            save_checkpoint()
+        run.checkpoint_if_due(global_step=global_step, updates=updates)
 
     env.close()
-    if args.checkpoint_every > 0:
-        save_checkpoint()
-    if args.save_model:
-        run.save_model(q_network)
 
-    summary = None
-    if args.eval_episodes > 0:
-        def policy(observation: np.ndarray) -> int:
-            with torch.no_grad():
-                q = q_network(torch.as_tensor(np.asarray(observation)[None], device=device))[0]
-            if args.eval_greedy:
-                return int(q.argmax())
-            return int(Categorical(logits=q / args.temperature).sample())
+    def policy(observation: np.ndarray) -> int:
+        with torch.no_grad():
+            q = q_network(torch.as_tensor(np.asarray(observation)[None], device=device))[0]
+        if args.eval_greedy:
+            return int(q.argmax())
+        return int(Categorical(logits=q / args.temperature).sample())
 
-        summary = evaluate_policy(args.env_id, policy, args.eval_episodes, seed=args.seed + 10_000,
-                                  demo=demo, routines=library, max_steps=args.eval_max_steps)
-        summary.update(method="rapl-sqil" if library is not None else "sqil",
-                       global_step=global_step, num_routines=len(library or ()))
-        save_evaluation(summary, run.path, writer, global_step)
-    writer.close()
-    return summary
+    return run.finish(policy, model=q_network,
+                      method="rapl-sqil" if library is not None else "sqil",
+                      summary={"num_routines": len(library or ())}, demo=demo, routines=library,
+                      max_steps=args.eval_max_steps, global_step=global_step, updates=updates)
 
 
 if __name__ == "__main__":

@@ -5,9 +5,13 @@ each script, written once.
 saved `Args`, the checkpoint, the run's own folder), makes the run folder
 `{run_dir}/{env}__{exp_name}[-{mode}]__{seed}__{time}`, the TensorBoard writer with the
 hyper-parameter table, seeds Python, NumPy and torch (and a `numpy.random.Generator` for the
-script's own draws), sets torch's threads and picks the device. The `Run` it returns saves
-checkpoints (with every RNG state and the `Args` as JSON) and the model through the one atomic
-writer of `routine_gym.plumbing.atomic`.
+script's own draws), sets torch's threads and picks the device. The `Run` it returns holds the
+run's lifecycle, so a script's `main` holds only its algorithm: `run.resume(...)` names what a
+checkpoint holds and puts it back on `--resume` (returning the step counters),
+`run.checkpoint_if_due(...)` saves one every `--checkpoint-every` steps (with every RNG state
+and the `Args` as JSON), and `run.finish(policy, ...)` saves the last checkpoint and the model,
+evaluates (`eval.json`, `--extra-evals`), records `--record-demo` and closes the writer; files
+go through the one atomic writer of `routine_gym.plumbing.atomic`.
 
 `check_args(args)` is the one argument check: every numeric flag with a domain, by its field
 name, with Gymnasium-style messages that name the flag and the bad value
@@ -305,6 +309,126 @@ class Run:
         except (KeyError, TypeError, ValueError, RuntimeError) as exc:
             raise UsageError(f"--resume {self.args.resume}: its RNG state is not one "
                              f"routine-gym saved ({type(exc).__name__})") from None
+
+    # -- the lifecycle: resume, checkpoint, finish ---------------------------------------------
+
+    def resume(self, state: dict[str, Any], *, extra: dict[str, Any] | None = None,
+               **counters: int) -> Any:
+        """Name what the run's checkpoints hold; on `--resume`, put it back where it was.
+
+        Args:
+            state: the objects with a `state_dict` (models, optimizers), by checkpoint key.
+            extra: values saved as they are (the routine library as JSON, ...); the script reads
+                them from `run.checkpoint` itself, before it builds what depends on them.
+            counters: the step counters with their start values (`global_step=0,
+                iteration=0`); the first is the one `--checkpoint-every` counts.
+
+        Returns:
+            The counters' values (the saved ones on `--resume`), one int for one counter, else
+            a tuple in the order given.
+        """
+        self._state, self._extra = dict(state), dict(extra or {})
+        self._counter_names = tuple(counters)
+        values = dict(counters)
+        if self.checkpoint is not None:
+            for key, target in self._state.items():
+                self.restore(target, key)
+            values = {name: self.checkpoint[name] for name in counters}
+            self.restore_rng()
+            step = values[self._counter_names[0]]
+            print(f"resumed {self.name} at step {step}")
+        self._checkpoints = Every(self.args.checkpoint_every,
+                                  start=values[self._counter_names[0]])
+        out = tuple(values[name] for name in self._counter_names)
+        return out[0] if len(out) == 1 else out
+
+    def _save_state(self, counters: dict[str, int]) -> None:
+        self.save_checkpoint({
+            **{key: target.state_dict() for key, target in self._state.items()},
+            **{name: counters[name] for name in self._counter_names},
+            **self._extra,
+        })
+
+    def checkpoint_if_due(self, **counters: int) -> None:
+        """Save a checkpoint when the step counter (`resume`'s first) has passed the next
+        multiple of `--checkpoint-every`; `counters` are the values of `resume`'s counters."""
+        if self._checkpoints.due(counters[self._counter_names[0]]):
+            self._save_state(counters)
+
+    def finish(self, policy: Callable[..., int], *, model: Any, method: str,
+               demo: Any = None, routines: Any = None, env_kwargs: dict[str, Any] | None = None,
+               max_steps: int | None = None, summary: dict[str, Any] | None = None,
+               **counters: int) -> dict[str, Any] | None:
+        """End the run: the last checkpoint (with `--checkpoint-every`), the model
+        (`--save-model`), the evaluation in `eval.json` (`--eval-episodes`), the evaluations of
+        `--extra-evals`, the demo of `--record-demo`, and the writer closed.
+
+        Args:
+            policy: the trained policy, as `evaluate_policy` takes it.
+            model: what `save_model` saves (a module, or modules by name).
+            demo: the demo the evaluation aligns with (None: no alignment).
+            routines: the routines the policy can choose.
+            env_kwargs: the evaluation levels (None: `evaluate_policy`'s default).
+            max_steps: `--eval-max-steps`, where the script has it.
+            method: the method's name in `eval.json`.
+            summary: what the script adds to `eval.json` after `method` and `global_step`
+                (the step counter's final value).
+            counters: the final values of `resume`'s counters.
+
+        Returns:
+            The evaluation's summary (None without `--eval-episodes`).
+        """
+        from routine_gym.plumbing.evaluation import evaluate_policy, save_evaluation
+
+        args, step = self.args, counters[self._counter_names[0]]
+        if args.checkpoint_every > 0:
+            self._save_state(counters)
+        if args.save_model:
+            self.save_model(model)
+        result = None
+        if args.eval_episodes > 0:
+            result = evaluate_policy(args.env_id, policy, args.eval_episodes,
+                                     seed=args.seed + 10_000, demo=demo, routines=routines,
+                                     env_kwargs=env_kwargs, max_steps=max_steps)
+            result.update(method=method, global_step=step, **(summary or {}))
+            save_evaluation(result, self.path, self.writer, step)
+            for levels in getattr(args, "extra_evals", ()):
+                other = evaluate_policy(args.env_id, policy, args.eval_episodes,
+                                        seed=args.seed + 10_000, routines=routines,
+                                        env_kwargs=level_env_kwargs(args, levels),
+                                        max_steps=max_steps)
+                other.update(method=method, global_step=step, **(summary or {}), levels=levels)
+                save_evaluation(other, self.path, self.writer, step, name=f"eval-{levels}")
+        if getattr(args, "record_demo", None):
+            self._record_demo(policy, routines, step)
+        self.writer.close()
+        return result
+
+    def _record_demo(self, policy: Callable[..., int], routines: Any, step: int) -> None:
+        """`--record-demo`: the best of `--demo-episodes` games of the trained agent, on the
+        training levels, saved without observations."""
+        import gymnasium as gym
+
+        from routine_gym.demo import record_agent_demo
+        from routine_gym.envs.factory import default_env_kwargs, preprocess
+
+        args = self.args
+
+        def wrap(env):
+            return preprocess(gym.wrappers.RecordEpisodeStatistics(env), args.env_id,
+                              training=False)
+
+        # The demo marks the agent's decisions (each step of a chosen routine included) apart
+        # from the steps the preprocessing injects (no-op start, FIRE, served lives).
+        demo = record_agent_demo(
+            args.env_id, policy, num_episodes=args.demo_episodes, seed=args.seed + 20_000,
+            env_kwargs={**default_env_kwargs(args.env_id), **train_env_kwargs(args)},
+            wrap_env=wrap, routines=routines,
+            meta={"trained_steps": step, "command": " ".join(sys.argv),
+                  "mode": getattr(args, "mode", None), "run": self.name},
+        )
+        demo.save(args.record_demo, include_observations=False)
+        print(f"demo saved to {args.record_demo}: score {demo.score:g}, {len(demo)} steps")
 
     def save_model(self, model: torch.nn.Module | dict[str, torch.nn.Module]) -> str:
         """Save `model`'s weights (or each named model's) to `{run}/model.pt` atomically."""
