@@ -37,9 +37,8 @@ from torch.distributions.categorical import Categorical
 
 import routine_gym
 from routine_gym.envs.factory import make_env, make_primitive_env
-from routine_gym.library import RoutineLibrary
 from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.plumbing.loading import load_demo, load_routines
+from routine_gym.plumbing.loading import load_demo
 from routine_gym.plumbing.run import (
     Every,
     eval_env_kwargs,
@@ -190,6 +189,14 @@ def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
              f"≤ --max-routine-length ({args.max_routine_length})")]
 
 
+def action_meanings(args: Args) -> list[str] | None:
+    """The primitive actions' names of the training env (None when it has none)."""
+    probe = make_primitive_env(args.env_id, **train_env_kwargs(args))
+    meanings = getattr(probe.unwrapped, "get_action_meanings", lambda: None)()
+    probe.close()
+    return meanings
+
+
 def main(args: Args) -> None:
     # An explicit --total-timesteps on --resume sets a new budget: higher to train on, or at
     # most the steps done to go straight to evaluation and demo recording.
@@ -201,24 +208,12 @@ def main(args: Args) -> None:
 
     # Routines: mined from the demo (or loaded), printed with action names, saved with the run.
     demo, library = None, None
-    if run.checkpoint is not None and run.checkpoint["library"]:
-        library = RoutineLibrary.from_dict(json.loads(run.checkpoint["library"]))
-    elif args.mode != "a2c":
-        if args.routine_library is None:
+    if args.mode != "a2c":
+        resumed = run.checkpoint is not None and run.checkpoint["library"]
+        if args.routine_library is None and not resumed:
             demo, args.demo = load_demo(args.env_id, args.demo, purpose=f"--mode {args.mode}")
-        library = load_routines(
-            args.env_id, args.num_routines, demo=demo, library_path=args.routine_library,
-            proposer=args.proposer, length_weight=args.length_weight, alpha=args.alpha,
-            seed=args.seed, min_length=args.min_routine_length, source={"path": args.demo},
-            max_length=args.max_routine_length,
-            env_kwargs=train_env_kwargs(args), required=f"--mode {args.mode}",
-        )
-    if library is not None:
-        probe = make_primitive_env(args.env_id, **train_env_kwargs(args))
-        meanings = getattr(probe.unwrapped, "get_action_meanings", lambda: None)()
-        probe.close()
-        print(library.describe(meanings))
-        library.save(os.path.join(run.path, "routines.json"))
+        library = run.routines(demo, meanings=lambda: action_meanings(args),
+                               env_kwargs=train_env_kwargs(args), required=f"--mode {args.mode}")
 
     # Env setup: same-step autoreset, so the step that ends an episode returns the reset obs.
     thunks = [

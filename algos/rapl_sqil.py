@@ -54,9 +54,8 @@ import routine_gym
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_env
 from routine_gym.imitation import agent_view_states, build_demo_transitions, sqil_target
-from routine_gym.library import RoutineLibrary
 from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.plumbing.loading import check_demo_env, load_demo, load_routines
+from routine_gym.plumbing.loading import check_demo_env, load_demo
 from routine_gym.plumbing.run import Every, run_script, start_run
 from routine_gym.replay_memory import FrameReplayMemory
 
@@ -163,17 +162,7 @@ def main(args: Args) -> dict | None:
     # The demo, its routines, and the demo buffer D_prim ∪ D_routine in the agent's view.
     demo, args.demo = load_demo(args.env_id, args.demo)
     num_primitives = check_demo_env(demo, args.env_id)
-    if run.checkpoint is not None and run.checkpoint["library"]:
-        library = RoutineLibrary.from_dict(json.loads(run.checkpoint["library"]))
-    else:
-        library = load_routines(
-            args.env_id, args.num_routines, demo=demo, library_path=args.routine_library,
-            proposer=args.proposer, length_weight=args.length_weight, alpha=args.alpha,
-            seed=args.seed, source={"path": args.demo}, max_length=args.max_routine_length,
-        )
-    if library is not None:
-        print(library.describe(demo.action_meanings))
-        library.save(os.path.join(run.path, "routines.json"))
+    library = run.routines(demo, meanings=lambda: demo.action_meanings)
     demo_buffer = build_demo_transitions(
         demo, agent_view_states(demo, args.env_id), args.gamma, library, num_primitives
     )

@@ -334,10 +334,11 @@ def test_resume_keeps_the_library_and_may_raise_the_budget(rapl_a2c, tmp_path, m
     library = RoutineLibrary.load(folder / "routines.json")
     assert RoutineLibrary.from_dict(json.loads(checkpoint["library"])).routines == library.routines
 
-    def no_mining(args):
+    def no_mining(*args, **kwargs):
         raise AssertionError("a resumed run must reuse the checkpoint's routines")
 
-    monkeypatch.setattr(rapl_a2c, "load_routines", no_mining)
+    # Run.routines mines through load_routines: a resumed run must never get there.
+    monkeypatch.setattr("routine_gym.plumbing.loading.load_routines", no_mining)
     rapl_a2c.main(rapl_a2c.Args(resume=str(folder / "checkpoint.pt"), total_timesteps=300))
     assert f"at step {first_step}" in capsys.readouterr().out
     final = torch.load(folder / "checkpoint.pt", weights_only=True)

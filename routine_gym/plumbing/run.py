@@ -312,6 +312,43 @@ class Run:
 
     # -- the lifecycle: resume, checkpoint, finish ---------------------------------------------
 
+    def routines(self, demo: Any = None, *, meanings: Callable[[], Any] | None = None,
+                 env_kwargs: dict[str, Any] | None = None, required: str | None = None
+                 ) -> Any:
+        """The run's routine library, set up in one call: the resumed checkpoint's, else the
+        best K of `--routine-library`, else mined from `demo` with the run's miner flags
+        (`--num-routines`, `--proposer`, `--length-weight`, `--alpha`, `--seed`,
+        `--min-routine-length`, `--max-routine-length`). A library is printed with action names
+        (`meanings()`, called only then) and saved as the run's `routines.json`.
+
+        Args:
+            demo: the demo to mine (None with `--routine-library`).
+            meanings: the action names, asked for only when there is a library to print.
+            env_kwargs: the env a saved library is checked against (`load_routines`).
+            required: finding no routine is an error naming it (`"--mode rapl"`).
+
+        Returns:
+            The `RoutineLibrary`, or None (K = 0, or nothing mined and not required).
+        """
+        from routine_gym.library import RoutineLibrary
+        from routine_gym.plumbing.loading import load_routines
+
+        args = self.args
+        if self.checkpoint is not None and self.checkpoint["library"]:
+            library = RoutineLibrary.from_dict(json.loads(self.checkpoint["library"]))
+        else:
+            library = load_routines(
+                args.env_id, args.num_routines, demo=demo, library_path=args.routine_library,
+                proposer=args.proposer, length_weight=args.length_weight, alpha=args.alpha,
+                seed=args.seed, min_length=getattr(args, "min_routine_length", 2),
+                source={"path": args.demo}, max_length=args.max_routine_length,
+                env_kwargs=env_kwargs, required=required,
+            )
+        if library is not None:
+            print(library.describe(meanings() if meanings is not None else None))
+            library.save(os.path.join(self.path, "routines.json"))
+        return library
+
     def resume(self, state: dict[str, Any], *, extra: dict[str, Any] | None = None,
                **counters: int) -> Any:
         """Name what the run's checkpoints hold; on `--resume`, put it back where it was.
