@@ -199,7 +199,7 @@ CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "rng", "arg
 
 
 def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
-    """The CompILE flags' domains (the shared ones are `routine_gym.plumbing.run.DOMAINS`)."""
+    """The CompILE flags' domains (the shared ones are in `plumbing.arguments.DOMAINS`)."""
     at_least_1 = ("num_options", "compile_latents", "compile_segments", "compile_window",
                   "compile_hidden", "compile_iterations", "compile_batch_size")
     checks = [(name, getattr(args, name) >= 1, "≥ 1") for name in at_least_1]

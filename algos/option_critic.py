@@ -148,7 +148,7 @@ CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "rng", "arg
 
 
 def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
-    """The option-critic flags' domains (the shared ones are `routine_gym.plumbing.run.DOMAINS`)."""
+    """The option-critic flags' domains (the shared ones are in `plumbing.arguments.DOMAINS`)."""
     return [
         ("num_options", args.num_options >= 1, "≥ 1"),
         ("option_epsilon", 0 <= args.option_epsilon <= 1, "in [0, 1]"),

@@ -184,7 +184,7 @@ CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "rng", "arg
 
 
 def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
-    """The rules between flags (each flag's own domain is in `routine_gym.plumbing.run.DOMAINS`)."""
+    """The rules between flags (each flag's own domain is in `plumbing.arguments.DOMAINS`)."""
     return [("min_routine_length", args.min_routine_length <= args.max_routine_length,
              f"≤ --max-routine-length ({args.max_routine_length})")]
 

@@ -150,7 +150,7 @@ CHECKPOINT_KEYS = ("model", "target", "optimizer", "global_step", "updates", "rn
 
 
 def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
-    """SQIL's rule on top of `routine_gym.plumbing.run.DOMAINS`: a batch is half demo, half
+    """SQIL's rule on top of `routine_gym.plumbing.arguments.DOMAINS`: a batch is half demo, half
     agent."""
     return [("batch_size", args.batch_size >= 2, "≥ 2 (half demo, half agent)")]
 

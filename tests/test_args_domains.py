@@ -1,9 +1,9 @@
 """Every numeric flag of every script has its domain checked before any work.
 
-A flag's domain is a rule in `routine_gym.plumbing.run.DOMAINS` (shared by the scripts), a rule of
-the script's module-level `extra_checks(args)` (its own flags), or a line of `ANY_VALUE` saying why
-any value is legitimate. A new int or float field of an `Args` with none of the three fails
-`test_every_numeric_flag_has_a_domain`, naming its script and flag.
+A flag's domain is a rule in `routine_gym.plumbing.arguments.DOMAINS` (shared by the scripts),
+a rule of the script's module-level `extra_checks(args)` (its own flags), or a line of
+`ANY_VALUE` saying why any value is legitimate. A new int or float field of an `Args` with
+none of the three fails `test_every_numeric_flag_has_a_domain`, naming its script and flag.
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ import typing
 import pytest
 from script_loader import ALGOS, load_script
 
+from routine_gym.plumbing.arguments import DOMAINS
 from routine_gym.plumbing.errors import UsageError
-from routine_gym.plumbing.run import DOMAINS
 
 NAMES = sorted(path.stem for path in ALGOS.glob("*.py"))
 SCRIPTS = {name: load_script(name, f"domains_{name}") for name in NAMES}
@@ -64,8 +64,8 @@ def test_every_numeric_flag_has_a_domain(script):
     covered = set(DOMAINS) | own_checked_fields(module) | set(ANY_VALUE)
     missing = [name for name in numeric_fields(module.Args) if name not in covered]
     assert missing == [], (f"{script}.py: no domain for {missing}: add one to "
-                           "routine_gym.plumbing.run.DOMAINS, to the script's extra_checks, or to "
-                           "ANY_VALUE with why")
+                           "routine_gym.plumbing.arguments.DOMAINS, to the script's "
+                           "extra_checks, or to ANY_VALUE with why")
 
 
 @pytest.mark.parametrize("script", NAMES)

@@ -32,9 +32,9 @@ from routine_gym.mining import (
     make_proposer,
 )
 from routine_gym.occurrences import OccurrenceIndex
+from routine_gym.plumbing.arguments import check_args
 from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.loading import load_routines
-from routine_gym.plumbing.run import check_args
 from routine_gym.sequitur import induce
 
 REPO = Path(__file__).resolve().parent.parent

@@ -1,0 +1,183 @@
+"""The one argument check of every script in `algos/`, and the command line that feeds it.
+
+`check_args(args)` checks every numeric flag with a domain (`DOMAINS`, by its field name, plus
+a script's own `extra_checks(args)`), with Gymnasium-style messages that name the flag and the
+bad value (`--gamma needs to be in (0, 1], actual value: 1.5`); a float that is not finite and
+a rollout longer than the budget are refused whatever the flag. `parse_args` is tyro with
+one-line errors, and remembers which flags the command line set (`--resume` needs to know).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import math
+import sys
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import fields
+from typing import Any
+
+from routine_gym.plumbing.errors import UsageError
+
+__all__ = ["DOMAINS", "ExtraChecks", "check_args", "given_flags", "parse_args"]
+
+
+# -- the argument check ------------------------------------------------------------------------
+
+#: Each numeric flag's domain, by `Args` field name: (test, what the message says it needs). A
+#: flag of one script alone has its rule in that script's module-level `extra_checks(args)`;
+#: tests/test_args_domains.py checks that every numeric flag of every script has one or the other.
+_AT_LEAST_1 = (lambda v: v >= 1, "≥ 1")
+_AT_LEAST_0 = (lambda v: v >= 0, "≥ 0")
+_POSITIVE = (lambda v: v > 0, "> 0")
+_UNIT = (lambda v: 0 < v <= 1, "in (0, 1]")
+DOMAINS: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "total_timesteps": _AT_LEAST_1,
+    "gradient_steps": _AT_LEAST_1,
+    "num_envs": _AT_LEAST_1,
+    "num_steps": _AT_LEAST_1,
+    "num_routines": _AT_LEAST_0,
+    "alpha": _AT_LEAST_1,
+    "min_routine_length": (lambda v: v >= 2, "≥ 2"),
+    "max_routine_length": (lambda v: v >= 2, "≥ 2"),
+    "length_weight": _AT_LEAST_0,
+    "gamma": _UNIT,
+    "gae_lambda": (lambda v: 0 <= v <= 1, "in [0, 1]"),
+    "learning_rate": _POSITIVE,
+    "disc_learning_rate": _POSITIVE,
+    "reward_scale": _POSITIVE,
+    "ent_coef": _AT_LEAST_0,
+    "vf_coef": _AT_LEAST_0,
+    "prim_coef": _AT_LEAST_0,
+    "max_grad_norm": _POSITIVE,
+    "rmsprop_alpha": (lambda v: 0 <= v < 1, "in [0, 1)"),
+    "rmsprop_eps": _POSITIVE,
+    "temperature": _POSITIVE,
+    "tau": _UNIT,
+    "batch_size": _AT_LEAST_1,
+    "buffer_size": (lambda v: v >= 8, "≥ 8"),
+    "train_frequency": _AT_LEAST_1,
+    "target_network_frequency": _AT_LEAST_1,
+    "lambda_sample": _AT_LEAST_0,
+    "learning_starts": _AT_LEAST_0,
+    "num_minibatches": _AT_LEAST_1,
+    "update_epochs": _AT_LEAST_1,
+    "disc_minibatches": _AT_LEAST_1,
+    "disc_epochs": _AT_LEAST_1,
+    "clip_coef": _POSITIVE,
+    "eval_episodes": _AT_LEAST_0,
+    "eval_max_steps": _AT_LEAST_1,
+    "demo_episodes": _AT_LEAST_1,
+    "checkpoint_every": _AT_LEAST_0,
+    "log_every": _AT_LEAST_1,
+    "torch_threads": _AT_LEAST_0,
+    "num_levels": _AT_LEAST_0,
+    "start_level": _AT_LEAST_0,
+    # NumPy's global seed (`np.random.seed`) takes no other; Gymnasium refuses negative ones.
+    "seed": (lambda v: 0 <= v < 2**32, "in [0, 2**32 - 1]"),
+}
+
+
+def _flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+#: Extra argument rules: a list of `(field, holds, what it needs)`, or a function of the
+#: `Args` returning one (so a run's settings restored by `--resume` are checked too).
+ExtraChecks = Iterable[tuple[str, bool, str]] | Callable[[Any], Iterable[tuple[str, bool, str]]]
+
+
+def check_args(args: Any, extra: ExtraChecks = ()) -> None:
+    """Refuse any numeric flag outside its domain (`DOMAINS`), before any work starts.
+
+    A float flag that is not finite (`inf`, `nan`) is refused whatever its rule, and a rollout
+    (`--num-steps`) longer than the whole budget (`--total-timesteps`) is refused too.
+
+    Args:
+        args: a script's `Args`; every field named in `DOMAINS` is checked (None means unset
+            and passes).
+        extra: the script's own rules, as `(field, holds, what it needs)`, or a function of
+            `args` returning them.
+
+    Raises:
+        UsageError: `--flag needs to be <domain>, actual value: <value>`.
+
+    Example:
+        >>> from dataclasses import dataclass
+        >>> @dataclass
+        ... class Args:
+        ...     gamma: float = 1.5
+        >>> check_args(Args())
+        Traceback (most recent call last):
+        ...
+        routine_gym.plumbing.errors.UsageError: --gamma needs to be in (0, 1], actual value: 1.5
+    """
+    for f in fields(args):
+        if f.name not in DOMAINS:
+            continue
+        value = getattr(args, f.name)
+        if value is None:
+            continue
+        test, needs = DOMAINS[f.name]
+        bad_number = isinstance(value, float) and not math.isfinite(value)
+        if bad_number or not test(value):
+            raise UsageError(f"{_flag(f.name)} needs to be {needs}, actual value: {value}")
+    for f in fields(args):
+        value = getattr(args, f.name)
+        if isinstance(value, float) and not math.isfinite(value):
+            raise UsageError(f"{_flag(f.name)} needs to be a finite number, actual value: "
+                             f"{value}")
+    steps, budget = getattr(args, "num_steps", None), getattr(args, "total_timesteps", None)
+    if isinstance(steps, int) and isinstance(budget, int) and steps > budget:
+        raise UsageError(f"--num-steps needs to be ≤ --total-timesteps ({budget:,}), actual "
+                         f"value: {steps:,}")
+    for name, holds, needs in (extra(args) if callable(extra) else extra):
+        if not holds:
+            raise UsageError(f"{_flag(name)} needs to be {needs}, "
+                             f"actual value: {getattr(args, name)}")
+
+
+def parse_args(args_type: type, renamed: dict[str, str] | None = None,
+               argv: Sequence[str] | None = None) -> Any:
+    """`tyro.cli(args_type)`, after refusing flags that were renamed, naming the new one.
+
+    tyro's own errors (an unknown flag, a value of the wrong type) come back as a `UsageError`
+    of one line, the heart of tyro's message.
+    """
+    import tyro
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    _GIVEN_FLAGS.clear()
+    _GIVEN_FLAGS.update(a[2:].split("=")[0].replace("-", "_") for a in argv if a.startswith("--"))
+    for old, new in (renamed or {}).items():
+        if any(a == old or a.startswith(old + "=") for a in argv):
+            raise UsageError(f"{old} was renamed: use {new}")
+    captured = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(captured):
+            return tyro.cli(args_type, args=argv)
+    except SystemExit as exc:
+        if exc.code in (0, None):
+            raise
+        raise UsageError(_tyro_message(captured.getvalue()) + " (see --help)") from None
+
+
+#: The `Args` fields the command line set (`parse_args`), so `--resume` can tell a flag given
+#: with its default value from one not given. Empty when `main` is called from Python.
+_GIVEN_FLAGS: set[str] = set()
+
+
+def _tyro_message(box: str) -> str:
+    """The message lines of tyro's error box, up to its first rule, on one line."""
+    lines = []
+    for line in box.splitlines()[1:]:
+        text = line.strip().strip("│╭╰╮╯").strip()
+        if not text or set(text) <= set("─"):
+            break
+        lines.append(text)
+    return " ".join(lines) or "bad arguments"
+
+
+def given_flags() -> set[str]:
+    """The `Args` fields the last `parse_args` saw on the command line (a copy)."""
+    return set(_GIVEN_FLAGS)
