@@ -6,7 +6,6 @@ each env family."""
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
 import sys
@@ -14,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from one_line import assert_one_line_error
 
 REPO = Path(__file__).resolve().parent.parent
 DEMOS = REPO / "demos"
@@ -40,15 +40,6 @@ def user(*words: str | Path, cwd: Path, timeout: float = 300) -> subprocess.Comp
 def ok(proc: subprocess.CompletedProcess) -> str:
     assert proc.returncode == 0, (proc.stdout[-2000:], proc.stderr[-3000:])
     return proc.stdout
-
-
-def one_line_error(proc: subprocess.CompletedProcess, *fragments: str) -> str:
-    assert proc.returncode == 2, (proc.stdout[-2000:], proc.stderr[-3000:])
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr[-3000:]
-    for fragment in fragments:
-        assert fragment in lines[0], lines[0]
-    return lines[0]
 
 
 @pytest.mark.parametrize("family", list(FAMILIES))
@@ -114,7 +105,7 @@ def test_show_demos_lists_every_shipped_demo(tmp_path):
 def test_play_without_a_display_is_a_one_line_error(tmp_path):
     proc = user("routine-gym", "play", "MiniQbert-v0", "--out", "me.npz", cwd=tmp_path,
                 timeout=60)
-    one_line_error(proc, "play needs a display")
+    assert_one_line_error(proc, "play needs a display", prefix="routine-gym: error: ")
     assert not (tmp_path / "me.npz").exists()
 
 
@@ -167,4 +158,3 @@ def test_each_script_trains_checkpoints_and_evaluates(script, family, flags, tmp
     assert summary["env_id"] == env_id and len(summary["returns"]) == 1
     assert (run / "checkpoint.pt").is_file()
     assert not [p for p in run.rglob("*.tmp")]
-    os.sync()

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from one_line import assert_one_line_error
 
 from routine_gym.demo import Demo, shipped_demo_path
 from routine_gym.library import RoutineLibrary
@@ -42,17 +43,6 @@ def script(name: str, *args: str, cwd: Path, env: dict | None = None):
 
 def cli(*args: str, cwd: Path):
     return run([sys.executable, "-m", "routine_gym.cli", *args], cwd)
-
-
-def assert_one_line_error(proc, *names: str) -> str:
-    """Exit code 2, one line on stderr, no traceback, every name in the message."""
-    lines = [line for line in proc.stderr.splitlines() if line.strip()]
-    assert proc.returncode == 2, (proc.returncode, proc.stderr[-2000:])
-    assert len(lines) == 1, proc.stderr
-    assert "Traceback" not in proc.stderr
-    for name in names:
-        assert name in lines[0], (name, lines[0])
-    return lines[0]
 
 
 # -- bad files --------------------------------------------------------------------------------

@@ -6,6 +6,7 @@ nothing."""
 
 from __future__ import annotations
 
+import functools
 import io
 import json
 import os
@@ -18,6 +19,7 @@ import time
 from pathlib import Path
 
 import pytest
+from one_line import assert_one_line_error
 
 from routine_gym.experiments import (
     backends,
@@ -32,6 +34,9 @@ from routine_gym.experiments import (
 )
 from routine_gym.experiments.specs import RunSpec
 from routine_gym.plumbing.errors import UsageError
+
+#: The sweep's errors are the CLI's: one line starting `routine-gym: error: `.
+_one_line_error = functools.partial(assert_one_line_error, prefix="routine-gym: error: ")
 
 CLI = [sys.executable, "-m", "routine_gym.cli"]
 BREAKOUT = "MinAtar/Breakout-v1"
@@ -54,15 +59,6 @@ BAD_JSON_IDS = [label for label, _ in BAD_JSON]
 def _cli(args: list[str], cwd: Path, timeout: float = 120) -> subprocess.CompletedProcess:
     return subprocess.run([*CLI, "experiment", *args], capture_output=True, text=True, cwd=cwd,
                           timeout=timeout)
-
-
-def _one_line_error(proc: subprocess.CompletedProcess, *parts: str) -> str:
-    assert proc.returncode == 2, proc.stdout + proc.stderr
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("routine-gym: error: "), proc.stderr
-    for part in parts:
-        assert part in lines[0], (part, lines[0])
-    return lines[0]
 
 
 def _one_line(exc: pytest.ExceptionInfo, *parts: str) -> str:
