@@ -116,10 +116,15 @@ def _add_record(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="save the best episode or all of them (best)")
     p.add_argument("--seed", type=int, default=0, help="seed of the first episode (0)")
     p.add_argument("--max-steps", type=int, default=None, help="cut episodes at this length")
+    _add_recording_options(p)
+    return p
+
+
+def _add_recording_options(p: argparse.ArgumentParser) -> None:
+    """What `record` and `play` share: the observations kept and `gym.make`'s arguments."""
     p.add_argument("--observations", action="store_true", help="store observations too")
     p.add_argument("--env-kwarg", action="append", metavar="KEY=VALUE",
                    help="keyword argument for gym.make (repeatable)")
-    return p
 
 
 def _add_play(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -133,9 +138,7 @@ def _add_play(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--episodes", "-n", type=int, default=1, help="episodes to play (1)")
     p.add_argument("--fps", type=int, default=None, help="frames per second (env default)")
     p.add_argument("--zoom", type=float, default=None, help="window zoom factor")
-    p.add_argument("--observations", action="store_true", help="store observations too")
-    p.add_argument("--env-kwarg", action="append", metavar="KEY=VALUE",
-                   help="keyword argument for gym.make (repeatable)")
+    _add_recording_options(p)
     return p
 
 
