@@ -64,7 +64,7 @@ def _load_demo(path: str):
 
 
 def cmd_mine(args: argparse.Namespace) -> int:
-    from routine_gym.mining import make_proposer
+    from routine_gym.mining import SELECTIONS, make_proposer
     from routine_gym.plumbing.atomic import check_writable
 
     _needs("--num-routines", args.num_routines, args.num_routines >= 1, "≥ 1")
@@ -72,6 +72,7 @@ def cmd_mine(args: argparse.Namespace) -> int:
     _needs("--alpha", args.alpha, args.alpha >= 1, "≥ 1")
     _needs("--seed", args.seed, args.seed >= 0, "≥ 0")
     _needs("--max-routine-length", args.max_routine_length, args.max_routine_length >= 2, "≥ 2")
+    _needs("--selection", args.selection, args.selection in SELECTIONS, " or ".join(SELECTIONS))
     if args.out:
         _not_an_input(args.out, "--out", args.demo)
         check_writable(args.out, "--out")
@@ -84,6 +85,7 @@ def cmd_mine(args: argparse.Namespace) -> int:
         seed=args.seed,
         prune_primitives=not args.keep_near_primitives,
         max_length=args.max_routine_length,
+        selection=args.selection,
     )
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

@@ -51,6 +51,9 @@ def _add_mine(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--keep-near-primitives", action="store_true",
                    help="do not count primitives as accepted (keeps length-2 routines at α=2)")
     p.add_argument("--max-routine-length", type=int, default=64, help="longest routine (64)")
+    p.add_argument("--selection", default="paper", metavar="{paper,authors}",
+                   help="paper: score f + λ·len, best first (default); authors: the authors' "
+                   "released code, score f / mean f, containment pruning, rule order (SPEC §5b)")
     p.add_argument("--out", "-o", help="save the library as JSON here")
     return p
 

@@ -12,6 +12,11 @@
    accepted routine is `< α`; primitives count as accepted, so with α = 2 no routine of
    length 2 survives. The first K accepted form the library.
 
+   `selection="authors"` swaps this phase for the one in the authors' released code
+   (SPEC §5b; `_Selector.select_authors`): score `f / mean f`, no length term, and a single
+   pass in rule order in which a candidate too close to, or containing or contained in, a
+   kept routine replaces it when its frequency is strictly higher.
+
 The ablation proposers of the paper share the interface (`mine(actions) -> RoutineLibrary`),
 use the same K and the routine lengths the full miner finds, and are seeded:
 
@@ -57,6 +62,7 @@ __all__ = [
     "RandomRoutines",
     "RepeatProposer",
     "RoutineProposer",
+    "SELECTIONS",
     "SequiturMiner",
     "demo_occurrences",
     "make_proposer",
@@ -160,6 +166,24 @@ def _check_params(num_routines: int, length_weight: float, alpha: int) -> None:
         raise ValueError(f"length_weight needs to be a finite number ≥ 0, got {length_weight}")
 
 
+#: The selection phases `SequiturMiner` offers: the paper's (the default) and the one in the
+#: authors' released code (SPEC §5b).
+SELECTIONS = ("paper", "authors")
+
+
+def _check_selection(selection: str) -> None:
+    if selection not in SELECTIONS:
+        raise ValueError(
+            f"selection needs to be one of {', '.join(SELECTIONS)}, actual value: {selection!r}"
+        )
+
+
+def _contains(outer: Routine, inner: Routine) -> bool:
+    """Whether `inner` is a contiguous run of `outer` (the authors' `whether_a_contain_b`)."""
+    n = len(inner)
+    return any(outer[i : i + n] == inner for i in range(len(outer) - n + 1))
+
+
 def _sort_key(score: float, routine: Routine) -> tuple[float, int, Routine]:
     return (-round(score, 9), -len(routine), routine)
 
@@ -228,6 +252,68 @@ class _Selector:
             accepted.append((routine, -key[0], f))
         return accepted
 
+    def select_authors(
+        self, candidates: Sequence[Routine], k: int
+    ) -> list[tuple[Routine, float, int]]:
+        """The selection of the authors' released code (SPEC §5b), on our candidates.
+
+        `make_demo_discover_rt/sq_rt_proposal.py` at 7192f0b, `evaluate_routines`:
+
+        - every candidate is counted, and scored `f / mean f` over all the candidates
+          (l. 98, 104); the length weight is never passed on (l. 42, 83: `size_weight=0`),
+          so `length_weight` plays no part;
+        - one pass over the candidates in rule order (the order `candidates` gives: the
+          grammar's rules numbered by first appearance, as their `get_grammar` numbers them
+          and `run_sequitur` collects them, l. 55-67; visited l. 87, 102). A candidate within
+          `α` of a primitive is dropped (l. 108-111, with `prune_primitives`). Otherwise it
+          is compared with the kept routines in the order they were kept, and only with the
+          *first* one it conflicts with: Levenshtein `< α`, or either contains the other as
+          a contiguous run (l. 118-119). If its score is strictly higher it replaces that
+          routine (removed; the candidate goes to the end of the kept list, whatever else it
+          conflicts with), else it is dropped (l. 121-127). A candidate with no conflict is
+          kept (l. 129-130);
+        - the kept routines are sorted by descending score, ties in the order kept (Python's
+          stable sort, `rank_one_by_another`), and the first `k` form the library (l. 139-142).
+
+        Their count (l. 89-95) misses an occurrence that ends on the sequence's last action
+        (l. 91-92: `end_pos >= len` should be `>`), and that is copied: it changes shipped
+        libraries (`bench/results/authors_selection.md`): MinAtar Breakout's routines come in
+        another order, MiniQbert's and CoinRun's first routine and ALE Breakout's second lose
+        an occurrence, and every demo whose last actions end a candidate gets another mean,
+        so other scores. Their code takes one sequence; ours counts episodes (and a demo's
+        decision segments) apart, and only the occurrence ending on the last action of the
+        last one is missed. Scores are compared as frequencies, which order exactly as
+        `f / mean f` do.
+        """
+        counted = [
+            (routine, self.index.count(routine) - self._ends_the_input(routine))
+            for routine in candidates
+        ]
+        if not counted:
+            return []
+        mean_f = sum(f for _, f in counted) / len(counted)
+        kept: list[tuple[Routine, int]] = []
+        for routine, f in counted:
+            if self.near_primitive(routine):
+                continue
+            for i, (other, g) in enumerate(kept):
+                if (self.near_accepted(routine, [other]) or _contains(routine, other)
+                        or _contains(other, routine)):
+                    if f > g:
+                        del kept[i]
+                        kept.append((routine, f))
+                    break
+            else:
+                kept.append((routine, f))
+        ranked = sorted(kept, key=lambda pair: -pair[1])
+        return [(routine, f / mean_f, f) for routine, f in ranked[:k]]
+
+    def _ends_the_input(self, routine: Routine) -> bool:
+        """Whether `routine` occurs at the very end of the last episode mined."""
+        last = self.index.seq[int(self.index.offsets[-2]):]
+        return len(routine) <= last.size and np.array_equal(last[last.size - len(routine):],
+                                                            routine)
+
 
 def _build_library(
     accepted: Sequence[tuple[Routine, float, int]],
@@ -273,6 +359,12 @@ class SequiturMiner:
             from a 5.6 KB demo made `rapl_a2c.py` with 4 envs need 3.8 GB.
         min_length: ignore candidates shorter than this (the scalability experiment's longer
             routines; 2 keeps every candidate).
+        selection: `"paper"` (the default, above) or `"authors"`, the selection of the
+            authors' released code (`_Selector.select_authors`): score `f / mean f` with the
+            mean over the candidates kept by `min_length` and `max_length`, no length term
+            (`length_weight` is unused), containment pruning, one pass in rule order.
+            Recorded in `params` only when `"authors"`, so the default's libraries are as
+            before.
     """
 
     num_routines: int = 3
@@ -281,11 +373,13 @@ class SequiturMiner:
     prune_primitives: bool = True
     max_length: int | None = MAX_ROUTINE_LENGTH
     min_length: int = 2
+    selection: str = "paper"
 
     name = "full"
 
     def __post_init__(self) -> None:
         _check_params(self.num_routines, self.length_weight, self.alpha)
+        _check_selection(self.selection)
         if self.max_length is not None and (
                 isinstance(self.max_length, bool)
                 or not isinstance(self.max_length, int | np.integer) or self.max_length < 2):
@@ -298,8 +392,12 @@ class SequiturMiner:
                              f"{self.max_length}: no candidate could be kept")
 
     def params(self) -> dict[str, Any]:
-        """The proposer's name and settings, as the library records them."""
-        return {"proposer": self.name, **asdict(self)}
+        """The proposer's name and settings, as the library records them (`selection` only
+        when it is not the paper's)."""
+        params = {"proposer": self.name, **asdict(self)}
+        if self.selection == "paper":
+            del params["selection"]
+        return params
 
     def candidates(self, episodes: Sequence[np.ndarray]) -> list[Routine]:
         """Every non-start rule of the grammar, expanded; duplicates merged, order kept.
@@ -320,7 +418,8 @@ class SequiturMiner:
         episodes = demonstrated.episodes
         index = OccurrenceIndex(episodes)
         selector = _Selector(index, self.length_weight, self.alpha, self.prune_primitives)
-        accepted = selector.select(self.candidates(episodes), self.num_routines)
+        select = selector.select_authors if self.selection == "authors" else selector.select
+        accepted = select(self.candidates(episodes), self.num_routines)
         return _build_library(
             accepted,
             index,
@@ -472,14 +571,22 @@ def make_proposer(
     prune_primitives: bool = True,
     min_length: int = 2,
     max_length: int | None = MAX_ROUTINE_LENGTH,
+    selection: str = "paper",
 ) -> RoutineProposer:
     """The proposer called `name` (`full`, `random`, `enumerate`, `random-fetch`, `repeat`);
     `min_length` and `max_length` bound the full model's routines, whose lengths the
-    ablations copy."""
+    ablations copy; `selection` (`paper` or `authors`, see `SequiturMiner`) is the full
+    model's only: the ablations score and prune the paper's way."""
     if name not in PROPOSERS:
         raise ValueError(f"unknown proposer {name!r}; choose from {', '.join(PROPOSERS)}")
+    _check_selection(selection)
     if name == "full":
         return SequiturMiner(num_routines, length_weight, alpha, prune_primitives,
-                             min_length=min_length, max_length=max_length)
+                             min_length=min_length, max_length=max_length, selection=selection)
+    if selection != "paper":
+        raise ValueError(
+            f"selection {selection!r} is the full proposer's only; the {name!r} ablation "
+            "scores and prunes the paper's way"
+        )
     return PROPOSERS[name](num_routines, length_weight, alpha, prune_primitives, seed,
                            min_length, max_length)

@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import re
 import warnings
 from typing import Any
 
@@ -118,6 +119,7 @@ def load_routines(
     seed: int = 0,
     min_length: int = 2,
     max_length: int | None = MAX_ROUTINE_LENGTH,
+    selection: str = "paper",
     source: dict[str, Any] | None = None,
     env_kwargs: dict[str, Any] | None = None,
     required: str | None = None,
@@ -135,6 +137,8 @@ def load_routines(
         proposer, length_weight, alpha, seed, min_length, max_length: the miner
             (`routine_gym.mining.make_proposer`); the scripts' `--min-routine-length` and
             `--max-routine-length`.
+        selection: `"paper"` or `"authors"`, the selection phase of the full miner
+            (`routine_gym.mining.SequiturMiner`; SPEC §5b); the ablations take only `"paper"`.
         source: provenance the mined library records (the demo's path).
         env_kwargs: `gym.make` keyword arguments of the env a saved library is checked against.
         required: when set (`"--mode rapl"`), finding no routine is an error naming it.
@@ -195,9 +199,11 @@ def load_routines(
             raise ValueError("load_routines needs a demo to mine or a library_path")
         try:
             miner = make_proposer(proposer, num_routines, length_weight, alpha, seed=seed,
-                                  min_length=min_length, max_length=max_length)
+                                  min_length=min_length, max_length=max_length,
+                                  selection=selection)
         except ValueError as err:
             message = str(err).replace("min_length", "--min-routine-length")
+            message = re.sub(r"\bselection\b", "--selection", message)
             raise UsageError(message.replace("max_length", "--max-routine-length")) from None
         with warnings.catch_warnings():
             # The miner's own "only k routines survive" warning is re-issued below.
