@@ -73,6 +73,7 @@ from routine_gym.baselines.compile import (
 from routine_gym.envs.factory import make_env
 from routine_gym.imitation.agent_view import agent_view_states, decision_steps
 from routine_gym.networks import ObservationEncoder, layer_init
+from routine_gym.plumbing.counters import Counters, budget_spent
 from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.loading import load_demo
 from routine_gym.plumbing.run import Every, eval_env_kwargs, run_script, start_run, train_env_kwargs
@@ -97,7 +98,11 @@ class Args:
     env_id: str = "ALE/Qbert-v5"
     """the env id: `ALE/*-v5`, `*NoFrameskip-v4`, `procgen/CoinRun-v0` or any discrete env"""
     total_timesteps: int = 10_000_000
-    """total primitive agent steps of the experiment"""
+    """total primitive agent steps of the experiment (decisions with --budget-unit decisions)"""
+    budget_unit: Literal["steps", "decisions"] = "steps"
+    """what --total-timesteps, the learning-rate schedule and --checkpoint-every count:
+    primitive agent steps, or decisions (agent calls that chose an action
+    or an option)"""
     learning_rate: float = 7e-4
     """the learning rate of the RMSprop optimizer"""
     anneal_lr: bool = True
@@ -162,14 +167,16 @@ class Args:
     save_model: bool = False
     """save the final controller to runs/{run_name}/model.pt (CompILE is always saved)"""
     checkpoint_every: int = 0
-    """save a resumable checkpoint every this many primitive steps (0: never)"""
+    """save a resumable checkpoint every this many primitive steps (decisions with
+    --budget-unit decisions; 0: never)"""
     resume: str | None = None
     """checkpoint file (or run folder) to resume a killed run from, with its saved settings
     (a --total-timesteps other than the default sets a new budget)"""
     eval_episodes: int = 10
     """episodes to evaluate the final policy on (0 disables); results in eval.json"""
     log_every: int = 10_000
-    """print a progress line every this many primitive steps"""
+    """print a progress line every this many primitive steps (decisions with --budget-unit
+    decisions)"""
     run_dir: str = "runs"
     """where run folders go"""
     torch_threads: int = 0
@@ -195,7 +202,8 @@ class Agent(nn.Module):
 
 
 #: What a checkpoint of this script holds (`--resume` checks for each).
-CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "rng", "args", "compile")
+CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "decisions", "rng", "args",
+                   "compile")
 
 
 def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
@@ -320,23 +328,26 @@ def main(args: Args) -> dict | None:
 
     # What a checkpoint holds (the options' model with it); a resumed run starts where its
     # checkpoint left off.
-    global_step, iteration = run.resume({"model": agent, "optimizer": optimizer},
-                                        global_step=0, iteration=0,
-                                        extra={"compile": compile_state(compile_model, meta)})
+    global_step, iteration, decisions = run.resume(
+        {"model": agent, "optimizer": optimizer}, global_step=0, iteration=0, decisions=0,
+        count="decisions" if args.budget_unit == "decisions" else "global_step",
+        extra={"compile": compile_state(compile_model, meta)})
 
     # The env is reset with a seed that depends on where the run is, so a resumed run does not
     # replay the episodes it already saw.
     next_obs, _ = envs.reset(seed=args.seed + global_step)
-    start_time, start_step = time.time(), global_step
-    decisions, logs = 0, Every(args.log_every, start=global_step)
+    start_time, start_step, start_decisions = time.time(), global_step, decisions
+    logs = Every(args.log_every, start=budget_spent(args.budget_unit, global_step, decisions))
+    counts = Counters(writer, num_primitives, num_options)
     action_counts = np.zeros(num_actions, dtype=np.int64)
     option_steps = np.zeros(num_options, dtype=np.int64)
     recent_returns: list[float] = []
 
-    while global_step < args.total_timesteps:
+    while (spent := budget_spent(args.budget_unit, global_step, decisions)) \
+            < args.total_timesteps:
         iteration += 1
         if args.anneal_lr:
-            frac = max(1.0 - global_step / args.total_timesteps, 0.0)
+            frac = max(1.0 - spent / args.total_timesteps, 0.0)
             optimizer.param_groups[0]["lr"] = frac * args.learning_rate
 
         # The policy does not change during a rollout, so the acting forward pass keeps its
@@ -365,6 +376,7 @@ def main(args: Args) -> dict | None:
 
             global_step += int(lengths[step].sum())
             decisions += e
+            counts.add(action, lengths[step].sum())
             np.add.at(action_counts, action, 1)
             chose = action >= num_primitives
             np.add.at(option_steps, action[chose] - num_primitives, lengths[step][chose])
@@ -401,7 +413,9 @@ def main(args: Args) -> dict | None:
         writer.add_scalar("losses/policy_loss", pg_loss.item(), global_step)
         writer.add_scalar("losses/entropy", entropy_loss.item(), global_step)
         writer.add_scalar("charts/SPS", sps, global_step)
-        writer.add_scalar("charts/decisions_per_second", int(decisions / elapsed), global_step)
+        writer.add_scalar("charts/decisions_per_second",
+                          int((decisions - start_decisions) / elapsed), global_step)
+        counts.log(global_step, decisions, iteration)
         usage = action_counts / max(action_counts.sum(), 1)
         writer.add_scalar("options/primitive_usage", usage[:num_primitives].sum(), global_step)
         for k in range(num_options):
@@ -410,12 +424,16 @@ def main(args: Args) -> dict | None:
             if chosen:
                 writer.add_scalar(f"options/length_{k}", option_steps[k] / chosen, global_step)
 
-        if logs.due(global_step) or global_step >= args.total_timesteps:
+        spent = budget_spent(args.budget_unit, global_step, decisions)
+        if logs.due(spent) or spent >= args.total_timesteps:
             mean_ret = f"{np.mean(recent_returns[-20:]):.1f}" if recent_returns else "n/a"
-            print(f"step {global_step:>10,d}/{args.total_timesteps:,d}  SPS {sps:>5d}  "
+            progress = f"step {global_step:>10,d}/{args.total_timesteps:,d}" \
+                if args.budget_unit == "steps" else \
+                f"decision {decisions:>10,d}/{args.total_timesteps:,d}  step {global_step:,d}"
+            print(f"{progress}  SPS {sps:>5d}  "
                   f"return(last 20) {mean_ret:>8s}  episodes {len(recent_returns):>5d}  "
                   f"option use {usage[num_primitives:].sum():5.1%}", flush=True)
-        run.checkpoint_if_due(global_step=global_step, iteration=iteration)
+        run.checkpoint_if_due(global_step=global_step, iteration=iteration, decisions=decisions)
 
     envs.close()
 
@@ -431,7 +449,7 @@ def main(args: Args) -> dict | None:
     return run.finish(policy, model=agent, method="compile",
                       summary={"option_codes": codes, "option_max_length": max_len}, demo=demo,
                       env_kwargs=eval_env_kwargs(args), global_step=global_step,
-                      iteration=iteration)
+                      iteration=iteration, decisions=decisions)
 
 
 if __name__ == "__main__":

@@ -46,6 +46,7 @@ from routine_gym.baselines.option_critic import (
 )
 from routine_gym.envs.factory import make_env
 from routine_gym.networks import ObservationEncoder, layer_init
+from routine_gym.plumbing.counters import Counters, budget_spent
 from routine_gym.plumbing.run import Every, eval_env_kwargs, run_script, start_run, train_env_kwargs
 
 
@@ -65,7 +66,10 @@ class Args:
     """the env id: `ALE/*-v5`, `procgen/CoinRun-v0`, `MinAtar/*-v1`, `MiniQbert-v0` or any
     discrete env"""
     total_timesteps: int = 10_000_000
-    """total primitive agent steps of the experiment"""
+    """total primitive agent steps of the experiment (decisions with --budget-unit decisions)"""
+    budget_unit: Literal["steps", "decisions"] = "steps"
+    """what --total-timesteps, the learning-rate schedule and --checkpoint-every count:
+    primitive agent steps, or decisions (option choices)"""
     learning_rate: float = 7e-4
     """the learning rate of the RMSprop optimizer"""
     anneal_lr: bool = True
@@ -111,14 +115,16 @@ class Args:
     save_model: bool = False
     """save the final model to runs/{run_name}/model.pt"""
     checkpoint_every: int = 0
-    """save a resumable checkpoint every this many primitive steps (0: never)"""
+    """save a resumable checkpoint every this many primitive steps (decisions with
+    --budget-unit decisions; 0: never)"""
     resume: str | None = None
     """checkpoint file (or run folder) to resume a killed run from, with its saved settings
     (a --total-timesteps other than the default sets a new budget)"""
     eval_episodes: int = 10
     """episodes to evaluate the final policy on (0 disables); results in eval.json"""
     log_every: int = 10_000
-    """print a progress line every this many primitive steps"""
+    """print a progress line every this many primitive steps (decisions with --budget-unit
+    decisions)"""
     run_dir: str = "runs"
     """where run folders go"""
     torch_threads: int = 0
@@ -144,7 +150,7 @@ class Agent(nn.Module):
 
 
 #: What a checkpoint of this script holds (`--resume` checks for each).
-CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "rng", "args")
+CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "decisions", "rng", "args")
 
 
 def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
@@ -179,9 +185,13 @@ def main(args: Args) -> dict | None:
                                     alpha=args.rmsprop_alpha, eps=args.rmsprop_eps)
 
     # What a checkpoint holds; a resumed run starts where its checkpoint left off.
-    global_step, iteration = run.resume({"model": agent, "optimizer": optimizer},
-                                        global_step=0, iteration=0)
-    logs = Every(args.log_every, start=global_step)
+    # A decision is an option choice (an option that goes on is not one); with
+    # --budget-unit decisions the budget, the schedule and --checkpoint-every count them.
+    global_step, iteration, decisions = run.resume(
+        {"model": agent, "optimizer": optimizer}, global_step=0, iteration=0, decisions=0,
+        count="decisions" if args.budget_unit == "decisions" else "global_step")
+    logs = Every(args.log_every, start=budget_spent(args.budget_unit, global_step, decisions))
+    counts = Counters(writer, 0, args.num_options)
     n, e = args.num_steps, args.num_envs
     rewards = np.zeros((n, e), dtype=np.float64)
     dones = np.zeros((n, e), dtype=bool)
@@ -198,10 +208,11 @@ def main(args: Args) -> dict | None:
     recent_returns: list[float] = []
     start_time, start_step = time.time(), global_step
 
-    while global_step < args.total_timesteps:
+    while (spent := budget_spent(args.budget_unit, global_step, decisions)) \
+            < args.total_timesteps:
         iteration += 1
         if args.anneal_lr:
-            frac = max(1.0 - global_step / args.total_timesteps, 0.0)
+            frac = max(1.0 - spent / args.total_timesteps, 0.0)
             optimizer.param_groups[0]["lr"] = frac * args.learning_rate
 
         # Rollout. The forward pass at each state keeps its graph: it gives the acting outputs
@@ -220,6 +231,8 @@ def main(args: Args) -> dict | None:
             option_lengths[terminate] = 0
             options = choose_options(q.detach().cpu().numpy(), options, terminate,
                                      args.option_epsilon, rng)
+            decisions += int(terminate.sum())
+            counts.add(options[terminate], steps=e)
             option_t = torch.as_tensor(options, device=device)
             dist = Categorical(logits=logits[torch.arange(e), option_t])
             action = dist.sample()
@@ -286,7 +299,9 @@ def main(args: Args) -> dict | None:
         writer.add_scalar("losses/entropy", entropy_loss.item(), global_step)
         writer.add_scalar("losses/termination_loss", term_loss.item(), global_step)
         writer.add_scalar("charts/SPS", int((global_step - start_step) / elapsed), global_step)
-        if logs.due(global_step) or global_step >= args.total_timesteps:
+        counts.log(global_step, decisions, iteration)
+        spent = budget_spent(args.budget_unit, global_step, decisions)
+        if logs.due(spent) or spent >= args.total_timesteps:
             usage = option_counts / max(option_counts.sum(), 1)
             for k in range(args.num_options):
                 writer.add_scalar(f"options/usage_{k}", usage[k], global_step)
@@ -295,11 +310,13 @@ def main(args: Args) -> dict | None:
                 writer.add_scalar("options/duration", duration, global_step)
             finished_lengths = []
             mean_ret = f"{np.mean(recent_returns[-20:]):.1f}" if recent_returns else "n/a"
-            print(f"step {global_step:>10,d}/{args.total_timesteps:,d}  "
-                  f"SPS {int((global_step - start_step) / elapsed):>5d}  "
+            progress = f"step {global_step:>10,d}/{args.total_timesteps:,d}" \
+                if args.budget_unit == "steps" else \
+                f"decision {decisions:>10,d}/{args.total_timesteps:,d}  step {global_step:,d}"
+            print(f"{progress}  SPS {int((global_step - start_step) / elapsed):>5d}  "
                   f"return(last 20) {mean_ret:>8s}  episodes {len(recent_returns):>5d}  "
                   f"option duration {duration:5.1f}", flush=True)
-        run.checkpoint_if_due(global_step=global_step, iteration=iteration)
+        run.checkpoint_if_due(global_step=global_step, iteration=iteration, decisions=decisions)
 
     envs.close()
 
@@ -322,7 +339,7 @@ def main(args: Args) -> dict | None:
 
     return run.finish(policy, model=agent, method="option-critic",
                       env_kwargs=eval_env_kwargs(args), global_step=global_step,
-                      iteration=iteration)
+                      iteration=iteration, decisions=decisions)
 
 
 if __name__ == "__main__":

@@ -17,7 +17,13 @@ vector env returns the primitive rewards (and, for RAPL, observations) of every 
 where A_prim is taken at every primitive state visited *inside* a routine (the states where a
 routine starts already carry A_routine, whose target is the same return). `--mode macro`
 treats routines as black boxes (summed reward, one γ per decision, no A_prim); `--mode a2c`
-has no routines. Logged steps (`global_step`, `charts/SPS`) count primitive agent steps.
+has no routines. Logged steps (`global_step`, `charts/SPS`) count primitive agent steps; the
+run's decisions, updates, steps per decision and routine shares are logged under `counters/`
+(`routine_gym.plumbing.counters`), and `--budget-unit decisions` counts the budget in decisions.
+
+The authors' released code differs from the paper in ways SPEC §5b lists; each is a flag here
+(`--routine-discount`, `--critic-loss`, `--prim-states`, `--anneal-lr`, `--selection`) and
+`--authors` sets them all. The defaults follow the paper.
 """
 
 from __future__ import annotations
@@ -38,6 +44,9 @@ from torch.distributions.categorical import Categorical
 import routine_gym
 from routine_gym.envs.factory import make_env, make_primitive_env
 from routine_gym.networks import ObservationEncoder, layer_init
+from routine_gym.plumbing.arguments import given_flags
+from routine_gym.plumbing.counters import Counters, budget_spent
+from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.loading import load_demo
 from routine_gym.plumbing.run import (
     Every,
@@ -48,11 +57,15 @@ from routine_gym.plumbing.run import (
     train_env_kwargs,
 )
 from routine_gym.returns import (
+    critic_loss,
     decision_returns,
+    first_steps,
     inner_states_and_targets,
     macro_reward_and_discount,
     primitive_returns,
+    routine_discount_minus_one,
     routine_reward_and_discount,
+    window_returns,
 )
 from routine_gym.wrapper import merge_final
 
@@ -76,7 +89,11 @@ class Args:
     mode: Literal["rapl", "a2c", "macro"] = "rapl"
     """rapl: RAPL-A2C; a2c: plain A2C on primitives; macro: the MacroAction baseline"""
     total_timesteps: int = 10_000_000
-    """total primitive agent steps of the experiment"""
+    """total primitive agent steps of the experiment (decisions with --budget-unit decisions)"""
+    budget_unit: Literal["steps", "decisions"] = "steps"
+    """what --total-timesteps, the learning-rate schedule and --checkpoint-every count:
+    primitive agent steps, or decisions (agent calls; then a RAPL run makes as many updates
+    as A2C with the same number)"""
     learning_rate: float = 7e-4
     """the learning rate of the RMSprop optimizer"""
     anneal_lr: bool = True
@@ -125,6 +142,23 @@ class Args:
     max_routine_length: int = 64
     """ignore routine candidates longer than this (the wrapper pads every step to the longest)"""
 
+    # The authors' released code (SPEC §5b); the defaults follow the paper
+    routine_discount: Literal["paper", "authors"] = "paper"
+    """RAPL: a routine decision's discount, γ^ℓ (paper) or γ^(ℓ−1) (authors' code)"""
+    critic_loss: Literal["paper", "authors"] = "paper"
+    """RAPL: the critic loss L_routine + λ_prim·L_prim (paper) or 0.5·L_routine + 0.5·L_prim with
+    L_prim dropped when above 10 (authors' code)"""
+    prim_states: Literal["inside", "first-n"] = "inside"
+    """RAPL: the states of A_prim, every primitive state inside a routine (paper: the return to
+    the rollout's end), or the first --num-steps primitive steps of each env's rollout with
+    N-step targets (authors' code)"""
+    selection: Literal["paper", "authors"] = "paper"
+    """the routine score and pruning: f + λ·len and Levenshtein pruning (paper), or f / mean f
+    with pruning of routines containing or contained in a kept one, in rule order (authors')"""
+    authors: bool = False
+    """the authors' code in one flag: --routine-discount authors --critic-loss authors
+    --prim-states first-n --no-anneal-lr --selection authors (RAPL only)"""
+
     # Procgen
     num_levels: int = 100
     """Procgen: number of training levels"""
@@ -142,7 +176,8 @@ class Args:
     save_model: bool = False
     """save the final model to runs/{run_name}/model.pt"""
     checkpoint_every: int = 0
-    """save a resumable checkpoint every this many primitive steps (0: never)"""
+    """save a resumable checkpoint every this many primitive steps (decisions with
+    --budget-unit decisions; 0: never)"""
     resume: str | None = None
     """checkpoint file (or run folder) to resume a killed run from, with its saved settings
     (a --total-timesteps other than the default sets a new budget)"""
@@ -153,7 +188,8 @@ class Args:
     demo_episodes: int = 10
     """episodes to pick the best demo from"""
     log_every: int = 10_000
-    """print a progress line every this many primitive steps"""
+    """print a progress line every this many primitive steps (decisions with --budget-unit
+    decisions)"""
     run_dir: str = "runs"
     """where run folders go"""
     torch_threads: int = 0
@@ -180,13 +216,46 @@ class Agent(nn.Module):
 
 
 #: What a checkpoint of this script holds (`--resume` checks for each).
-CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "rng", "args", "library")
+CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "decisions", "rng", "args",
+                   "library")
+
+#: What `--authors` sets: the authors' code where it differs from the paper (SPEC §5b).
+AUTHORS_PRESET = {"routine_discount": "authors", "critic_loss": "authors",
+                  "prim_states": "first-n", "anneal_lr": False, "selection": "authors"}
+
+
+def authors_preset(args: Args) -> None:
+    """`--authors`: set every flag of the authors' variant, refusing one given otherwise."""
+    if not args.authors:
+        return
+    def flag(field: str, value) -> str:
+        name = field.replace("_", "-")
+        if isinstance(value, bool):
+            return f"--{name}" if value else f"--no-{name}"
+        return f"--{name} {value}"
+
+    given = given_flags()
+    for field, value in AUTHORS_PRESET.items():
+        if field in given and getattr(args, field) != value:
+            raise UsageError(f"--authors sets {flag(field, value)}; drop "
+                             f"{flag(field, getattr(args, field))} or --authors")
+        setattr(args, field, value)
 
 
 def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
     """The rules between flags (each flag's own domain is in `plumbing.arguments.DOMAINS`)."""
+    rapl_only = args.mode == "rapl"
     return [("min_routine_length", args.min_routine_length <= args.max_routine_length,
-             f"≤ --max-routine-length ({args.max_routine_length})")]
+             f"≤ --max-routine-length ({args.max_routine_length})"),
+            ("authors", rapl_only or not args.authors, "off unless --mode rapl"),
+            ("routine_discount", rapl_only or args.routine_discount == "paper",
+             "paper unless --mode rapl"),
+            ("critic_loss", rapl_only or args.critic_loss == "paper",
+             "paper unless --mode rapl"),
+            ("prim_states", rapl_only or args.prim_states == "inside",
+             "inside unless --mode rapl"),
+            ("selection", args.mode != "a2c" or args.selection == "paper",
+             "paper with --mode a2c (no routines)")]
 
 
 def action_meanings(args: Args) -> list[str] | None:
@@ -201,7 +270,7 @@ def main(args: Args) -> None:
     # An explicit --total-timesteps on --resume sets a new budget: higher to train on, or at
     # most the steps done to go straight to evaluation and demo recording.
     run = start_run(args, "rapl_a2c.py", CHECKPOINT_KEYS, lower_budget=True,
-                    extra_checks=extra_checks)
+                    extra_checks=extra_checks, preset=authors_preset)
     args, device, writer = run.args, run.device, run.writer
     for levels in args.extra_evals:
         level_env_kwargs(args, levels)  # refused now, not after training
@@ -246,24 +315,30 @@ def main(args: Args) -> None:
     truncated = np.zeros((n, e), dtype=bool)
     final_values = np.zeros((n, e), dtype=np.float64)
     inner_obs = np.zeros((n, max(max_len - 1, 1), e, *obs_shape), dtype=obs_dtype)
+    first_n = args.mode == "rapl" and args.prim_states == "first-n"
+    decision_obs = np.zeros((n if first_n else 1, e, *obs_shape), dtype=obs_dtype)
 
     # What a checkpoint holds; a resumed run starts where its checkpoint left off.
-    global_step, iteration = run.resume(
-        {"model": agent, "optimizer": optimizer}, global_step=0, iteration=0,
+    # --budget-unit decisions: the budget, the schedule and --checkpoint-every count decisions.
+    global_step, iteration, decisions = run.resume(
+        {"model": agent, "optimizer": optimizer}, global_step=0, iteration=0, decisions=0,
+        count="decisions" if args.budget_unit == "decisions" else "global_step",
         extra={"library": json.dumps(library.to_dict()) if library is not None else ""})
 
     # The env is reset with a seed that depends on where the run is, so a resumed run does not
     # replay the episodes it already saw.
     next_obs, _ = envs.reset(seed=args.seed + global_step)
-    start_time, start_step = time.time(), global_step
-    decisions, logs = 0, Every(args.log_every, start=global_step)
+    start_time, start_step, start_decisions = time.time(), global_step, decisions
+    logs = Every(args.log_every, start=budget_spent(args.budget_unit, global_step, decisions))
     routine_counts = np.zeros(num_actions, dtype=np.int64)
+    counts = Counters(writer, num_primitives, num_routines)
     recent_returns: list[float] = []
 
-    while global_step < args.total_timesteps:
+    while (spent := budget_spent(args.budget_unit, global_step, decisions)) \
+            < args.total_timesteps:
         iteration += 1
         if args.anneal_lr:
-            frac = max(1.0 - global_step / args.total_timesteps, 0.0)
+            frac = max(1.0 - spent / args.total_timesteps, 0.0)
             optimizer.param_groups[0]["lr"] = frac * args.learning_rate
 
         # The policy does not change during a rollout, so the acting forward pass keeps its
@@ -278,6 +353,8 @@ def main(args: Args) -> None:
             values.append(value_t)
             action = action_t.cpu().numpy()
             actions[step] = action
+            if first_n:
+                decision_obs[step] = next_obs
             next_obs, reward, term, trunc, info = envs.step(action)
             done = term | trunc
             terminated[step], truncated[step] = term, trunc
@@ -302,6 +379,7 @@ def main(args: Args) -> None:
             global_step += int(lengths[step].sum())
             decisions += e
             routine_counts += np.bincount(action, minlength=num_actions)
+            counts.add(action, lengths[step].sum())
             if done.any() and "episode" in info.get("final_info", {}):
                 final = info["final_info"]
                 for i in np.flatnonzero(final["_episode"]):
@@ -314,6 +392,9 @@ def main(args: Args) -> None:
         # and one γ per decision (identical for A2C, whose routines all have length 1).
         if args.mode == "rapl":
             rewards, discounts = routine_reward_and_discount(step_rewards, lengths, args.gamma)
+            if args.routine_discount == "authors":
+                discounts = routine_discount_minus_one(lengths, actions >= num_primitives,
+                                                       args.gamma)
         else:
             rewards, discounts = macro_reward_and_discount(step_rewards, lengths, args.gamma)
         with torch.no_grad():
@@ -328,7 +409,23 @@ def main(args: Args) -> None:
         entropy_loss = torch.stack(entropies).mean()
 
         prim_loss = torch.zeros((), device=device)
-        if args.mode == "rapl" and max_len > 1:
+        if first_n:
+            # The authors' A_prim: the first N primitive steps of each env's rollout, N-step TD.
+            where, inside = first_steps(lengths, n)
+            env_of = np.broadcast_to(np.arange(e), where.shape)
+            states = inner_obs[np.minimum(where, n - 1), np.maximum(inside - 1, 0), env_of]
+            at_decision = (inside == 0) & (where < n)  # a decision's own state
+            states[at_decision] = decision_obs[where[at_decision], env_of[at_decision]]
+            after = where == n  # the state after the rollout's last decision
+            states[after] = next_obs[env_of[after]]
+            state_values = agent.get_value(
+                torch.as_tensor(states.reshape(-1, *obs_shape), device=device)).view(n + 1, e)
+            targets = window_returns(step_rewards, lengths, terminated, truncated, final_values,
+                                     where, inside, state_values[n].detach().cpu().numpy(),
+                                     args.gamma)
+            targets = torch.as_tensor(targets, dtype=torch.float32, device=device)
+            prim_loss = (targets - state_values[:n]).pow(2).mean()
+        elif args.mode == "rapl" and max_len > 1:
             # A_prim at the primitive states inside routines (step j ≥ 1 of a decision).
             prim = primitive_returns(step_rewards, lengths, terminated, truncated, final_values,
                                      bootstrap, args.gamma)
@@ -339,7 +436,7 @@ def main(args: Args) -> None:
                 prim_loss = (targets - agent.get_value(states)).pow(2).mean()
 
         loss = pg_loss - args.ent_coef * entropy_loss \
-            + args.vf_coef * (v_loss + args.prim_coef * prim_loss)
+            + args.vf_coef * critic_loss(v_loss, prim_loss, args.critic_loss, args.prim_coef)
         optimizer.zero_grad()
         loss.backward()
         nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
@@ -352,7 +449,9 @@ def main(args: Args) -> None:
         writer.add_scalar("losses/policy_loss", pg_loss.item(), global_step)
         writer.add_scalar("losses/entropy", entropy_loss.item(), global_step)
         writer.add_scalar("charts/SPS", int((global_step - start_step) / elapsed), global_step)
-        writer.add_scalar("charts/decisions_per_second", int(decisions / elapsed), global_step)
+        writer.add_scalar("charts/decisions_per_second",
+                          int((decisions - start_decisions) / elapsed), global_step)
+        counts.log(global_step, decisions, iteration)
         if num_routines:
             usage = routine_counts / max(routine_counts.sum(), 1)
             writer.add_scalar("routines/primitive_usage", usage[:num_primitives].sum(),
@@ -360,14 +459,18 @@ def main(args: Args) -> None:
             for k in range(num_routines):
                 writer.add_scalar(f"routines/usage_{k}", usage[num_primitives + k], global_step)
 
-        if logs.due(global_step) or global_step >= args.total_timesteps:
+        spent = budget_spent(args.budget_unit, global_step, decisions)
+        if logs.due(spent) or spent >= args.total_timesteps:
             mean_ret = f"{np.mean(recent_returns[-20:]):.1f}" if recent_returns else "n/a"
             usage = routine_counts[num_primitives:].sum() / max(routine_counts.sum(), 1)
-            print(f"step {global_step:>10,d}/{args.total_timesteps:,d}  "
+            progress = f"step {global_step:>10,d}/{args.total_timesteps:,d}" \
+                if args.budget_unit == "steps" else \
+                f"decision {decisions:>10,d}/{args.total_timesteps:,d}  step {global_step:,d}"
+            print(f"{progress}  "
                   f"SPS {int((global_step - start_step) / elapsed):>5d}  "
                   f"return(last 20) {mean_ret:>8s}  episodes {len(recent_returns):>5d}  "
                   f"routine use {usage:5.1%}", flush=True)
-        run.checkpoint_if_due(global_step=global_step, iteration=iteration)
+        run.checkpoint_if_due(global_step=global_step, iteration=iteration, decisions=decisions)
 
     envs.close()
 
@@ -380,7 +483,8 @@ def main(args: Args) -> None:
     # Full games on the evaluation view (Procgen: unseen levels), aligned with the demo the
     # routines came from when there is one; then --extra-evals and --record-demo.
     run.finish(policy, model=agent, method=args.mode, demo=demo, routines=library,
-               env_kwargs=eval_env_kwargs(args), global_step=global_step, iteration=iteration)
+               env_kwargs=eval_env_kwargs(args), global_step=global_step, iteration=iteration,
+               decisions=decisions)
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ one torch thread and keeps every TensorBoard scalar but the wall-clock ones (`ch
 as its exact float32 bits; then it copies the committed cpu sweep
 (`bench/results/experiments/cpu`), runs `routine-gym experiment report` on the copy and keeps
 its CSVs. `compare` says, per script and per CSV, whether the two are identical, and exits 1
-when one is not.
+when one is not; tags only the second record has (a new counter) are listed, not compared.
 """
 
 from __future__ import annotations
@@ -107,9 +107,13 @@ def compare(before: Path, after: Path) -> int:
         a, b = (json.loads((d / f"{name}.json").read_text()) for d in (before, after))
         for kept in (a, b):  # a record made with fewer wall-clock tags left out
             kept["scalars"] = {t: v for t, v in kept["scalars"].items() if t not in WALL_CLOCK}
+        # A tag the change adds (a new counter) is not a change of training: it is listed.
+        added = sorted(set(b["scalars"]) - set(a["scalars"]))
+        b["scalars"] = {t: v for t, v in b["scalars"].items() if t not in added}
         same = a == b
         differ += not same
-        print(f"{name:16s} scalars {'identical' if same else 'DIFFER'}")
+        print(f"{name:16s} scalars {'identical' if same else 'DIFFER'}"
+              + (f" (and {len(added)} new tags: {', '.join(added)})" if added else ""))
     for csv in sorted((before / "report").glob("*.csv")):
         other = after / "report" / csv.name
         same = other.is_file() and _digest(csv) == _digest(other)

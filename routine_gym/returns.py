@@ -22,11 +22,15 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = [
+    "critic_loss",
     "decision_returns",
+    "first_steps",
     "inner_states_and_targets",
     "macro_reward_and_discount",
     "primitive_returns",
+    "routine_discount_minus_one",
     "routine_reward_and_discount",
+    "window_returns",
 ]
 
 
@@ -207,3 +211,122 @@ def inner_states_and_targets(
     max_len = prim_returns.shape[1]
     inside = np.arange(1, max_len)[None, :, None] < lengths[:, None, :]  # [N, L-1, E]
     return inner_obs[:, : max_len - 1][inside], prim_returns[:, 1:][inside]
+
+
+# -- the authors' variant (SPEC §5b): each difference from the paper as its own function -----
+
+
+def routine_discount_minus_one(lengths: np.ndarray, is_routine: np.ndarray,
+                               gamma: float) -> np.ndarray:
+    """The authors' code's decision discount: `γ^(ℓ−1)` after a routine, `γ` after a primitive
+    (`routine_wrapper.py:29-30` keeps `γ^idx` of the routine's last step), where the paper has
+    `γ^ℓ` for both.
+
+    Example:
+        >>> import numpy as np
+        >>> routine_discount_minus_one(np.array([[3, 1]]), np.array([[True, False]]), 0.5)
+        array([[0.25, 0.5 ]])
+    """
+    lengths = np.asarray(lengths).astype(np.float64)
+    return np.where(is_routine, gamma ** (lengths - 1.0), gamma)
+
+
+def critic_loss(value_loss, prim_loss, rule: str, prim_coef: float = 1.0,
+                prim_limit: float = 10.0):
+    """The critic's loss before `λ_value`: the paper's `L_routine + λ_prim L_prim`, or the
+    authors' `0.5·L_routine + 0.5·L_prim` with `L_prim` dropped (0) when above `prim_limit`
+    (`algo/a2c.py:7-11,72-75`, `clip_loss` with 10). Works on floats and on torch scalars.
+
+    Example:
+        >>> critic_loss(2.0, 4.0, "paper"), critic_loss(2.0, 4.0, "authors")
+        (6.0, 3.0)
+        >>> critic_loss(2.0, 12.0, "authors")  # L_prim above 10: dropped
+        1.0
+    """
+    if rule == "paper":
+        return value_loss + prim_coef * prim_loss
+    if rule == "authors":
+        size = float(prim_loss.detach()) if hasattr(prim_loss, "detach") else float(prim_loss)
+        kept = prim_loss if size <= prim_limit else prim_loss * 0.0
+        return 0.5 * value_loss + 0.5 * kept
+    raise ValueError(f"unknown critic loss {rule!r} (paper or authors)")
+
+
+def first_steps(lengths: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """Where the first `window` primitive steps of each env's rollout are, and the state after
+    them: the authors' `A_prim` states (`storage.py:219-234`).
+
+    Each env's rollout is its decisions' primitive steps in order; step `w` of it is step
+    `step[w]` of decision `decision[w]`. Entry `window` is the state the N-step targets
+    bootstrap from; `(N, 0)` stands for the state after the rollout's last decision.
+
+    Args:
+        lengths: `[N, E]` executed lengths ℓ (≥ 1), so each env has at least N steps.
+        window: how many steps (≤ N).
+
+    Returns:
+        `(decision, step)`, each `[window + 1, E]` int64.
+
+    Example:
+        >>> import numpy as np
+        >>> decision, step = first_steps(np.array([[3], [1], [2]]), window=3)
+        >>> decision[:, 0].tolist(), step[:, 0].tolist()
+        ([0, 0, 0, 1], [0, 1, 2, 0])
+        >>> decision, step = first_steps(np.array([[1], [1]]), window=2)
+        >>> decision[:, 0].tolist(), step[:, 0].tolist()  # the state after the rollout
+        ([0, 1, 2], [0, 0, 0])
+    """
+    lengths = np.asarray(lengths, dtype=np.int64)
+    n, e = lengths.shape
+    if not 1 <= window <= n:
+        raise ValueError(f"window needs to be in [1, {n}], actual value: {window}")
+    decision = np.zeros((window + 1, e), dtype=np.int64)
+    step = np.zeros((window + 1, e), dtype=np.int64)
+    for env in range(e):
+        ells = lengths[:, env]
+        owner = np.append(np.repeat(np.arange(n), ells), n)[: window + 1]
+        starts = np.append(np.cumsum(ells) - ells, ells.sum())
+        decision[:, env] = owner
+        step[:, env] = np.arange(window + 1) - starts[owner]
+    return decision, step
+
+
+def window_returns(rewards: np.ndarray, lengths: np.ndarray, terminated: np.ndarray,
+                   truncated: np.ndarray, final_values: np.ndarray, decision: np.ndarray,
+                   step: np.ndarray, bootstrap_value: np.ndarray, gamma: float) -> np.ndarray:
+    """N-step TD targets of the primitive steps `first_steps` picked: `G_w = r_w + γ G_{w+1}`,
+    from `bootstrap_value` (the value of the state after them), cut where an episode
+    terminates and bootstrapped from the final observation's value where it is truncated
+    (an episode ends only on a decision's last executed step).
+
+    Args:
+        rewards: `[N, L, E]` per-step rewards; lengths, terminated, truncated, final_values:
+            `[N, E]` as in `primitive_returns`.
+        decision, step: `[W + 1, E]` from `first_steps` (its last row is not read).
+        bootstrap_value: `[E]` the value of the state at `(decision[W], step[W])`.
+
+    Returns:
+        `[W, E]` targets.
+
+    Example:
+        >>> import numpy as np
+        >>> rewards = np.array([[[1.0], [2.0]], [[4.0], [0.0]]])  # decisions of ℓ 2 and 1
+        >>> lengths = np.array([[2], [1]])
+        >>> no = np.zeros((2, 1), dtype=bool)
+        >>> d, s = first_steps(lengths, 2)
+        >>> window_returns(rewards, lengths, no, no, np.zeros((2, 1)), d, s,
+        ...                np.array([10.0]), 0.5).ravel().tolist()  # 1 + .5(2 + .5·10), 2 + 5
+        [4.5, 7.0]
+    """
+    window = decision.shape[0] - 1
+    envs = np.arange(decision.shape[1])
+    d, j = decision[:window], step[:window]
+    last = j == np.asarray(lengths)[d, envs] - 1
+    return decision_returns(
+        np.asarray(rewards, dtype=np.float64)[d, j, envs],
+        np.full(d.shape, gamma, dtype=np.float64),
+        last & np.asarray(terminated)[d, envs],
+        last & np.asarray(truncated)[d, envs],
+        np.asarray(final_values, dtype=np.float64)[d, envs],
+        bootstrap_value,
+    )

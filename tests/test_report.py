@@ -54,7 +54,8 @@ class Sweep:
 
     def run(self, experiment: str, method: str, env_id: str, seed: int, score: float | None,
             variant: dict | None = None, eval_extra: dict | None = None,
-            evals: dict | None = None, curve: list | None = None) -> str:
+            evals: dict | None = None, curve: list | None = None,
+            counters: dict | None = None) -> str:
         """One run; `score=None` leaves it unfinished (no result.json)."""
         variant = variant or {}
         blob = json.dumps([experiment, method, env_id, seed, variant], sort_keys=True)
@@ -80,7 +81,8 @@ class Sweep:
                        **(eval_extra or {})}
             (folder / "result.json").write_text(json.dumps(
                 {"key": key, "run_dir": run_dir, "eval": summary, "evals": evals or {},
-                 "seconds": 1.0, "finished": f"2026-12-0{seed}T10:00:00Z"}))
+                 "seconds": 1.0, "finished": f"2026-12-0{seed}T10:00:00Z",
+                 **({"counters": counters} if counters else {})}))
         return key
 
     def write(self, budget: str = "cpu") -> None:
@@ -154,6 +156,20 @@ def _full_sweep(out: Path) -> tuple[Sweep, str]:
                 sweep.run("ablation", "RAPL-A2C", env_id, seed,
                           10 * v if env_id == BREAKOUT else 1 + 20 * v,
                           variant={"discovery": variant})
+    # Diagnosis: A2C 4, 6 on Breakout; RAPL 2, 2 with half the updates; at A2C's updates 5, 5.
+    diagnosis_runs = {("A2C", None): ((4, 6), 100, 1.0), ("RAPL-A2C", None): ((2, 2), 50, 2.0),
+                      ("RAPL-A2C", "decisions"): ((5, 5), 100, 2.0),
+                      ("RAPL-A2C", "authors"): ((2, 3), 50, 2.0),
+                      ("MacroAction", "decisions"): ((1, 1), 100, 2.0)}
+    for (method, kind), (scores, updates, per) in diagnosis_runs.items():
+        for seed in (1, 2):
+            bins = {"steps_per_decision": [per] * 4, "primitive_share": [1 / per] * 4}
+            sweep.run("diagnosis", method, BREAKOUT, seed, scores[seed - 1],
+                      variant={"diagnosis": kind} if kind else None,
+                      counters={"decisions": updates * 80, "updates": updates,
+                                "primitive_steps": int(updates * 80 * per),
+                                "steps_per_decision": per, "primitive_share": 1 / per,
+                                "episode_length": 20.0, "bins": bins})
     sweep.write()
     return sweep, missing
 
@@ -251,7 +267,9 @@ def test_fig3_from_the_curves_kept_in_result_json_without_tensorboard_logs(full,
     for log in logs:
         result_path = log.parent.parent / "result.json"
         result = json.loads(result_path.read_text())
-        result["curve"] = backends._curve(log.parent, STEPS)  # what the sweep keeps
+        # what the sweep keeps
+        result["curve"], _ = backends._curve_and_counters(log.parent, {"steps": STEPS,
+                                                                        "flags": {}})
         result_path.write_text(json.dumps(result))
         shutil.rmtree(log.parent)
     with pytest.MonkeyPatch.context() as monkeypatch:
@@ -324,7 +342,7 @@ def test_probability_of_improvement_of_a_dominating_method_is_one(full):
         assert f"| RAPL-A2C > {other} | 1.00 [1.00, 1.00] |" in text
 
 
-def test_all_six_figures_are_valid_pngs_with_their_csvs(full):
+def test_every_figure_is_a_valid_png_with_its_csv(full):
     import matplotlib.image
 
     out, written, _ = full
@@ -338,6 +356,23 @@ def test_all_six_figures_are_valid_pngs_with_their_csvs(full):
         assert png in written and folder / f"{stem}.csv" in written
     assert written[-1] == folder / "report.md"
     assert not list(folder.glob(".*.tmp"))
+
+
+def test_diagnosis_csvs_give_the_verdict_and_each_runs_counters(full):
+    out, _, _ = full
+    (row,) = _rows(out / "report" / "diagnosis.csv")
+    # A2C 5 ± 1; RAPL 2; at A2C's updates 5: within one standard error, update-starved.
+    assert float(row["A2C mean"]) == 5.0 and float(row["A2C se"]) == 1.0
+    assert float(row["RAPL-A2C, decisions budget mean"]) == 5.0
+    assert row["verdict"] == "update-starved (the decisions budget closes the gap)"
+    runs = _rows(out / "report" / "diagnosis_runs.csv")
+    assert len(runs) == 10
+    rapl = [r for r in runs if r["variant"] == "RAPL-A2C"]
+    assert {(r["updates"], r["decisions"], r["steps_per_decision"]) for r in rapl} == {
+        ("50", "4000", "2.0")}
+    assert {r["routine_share"] for r in rapl} == {"0.5"}
+    text = (out / "report" / "report.md").read_text()
+    assert "## Diagnosis " in text and "| MinAtar/Breakout-v1 | RAPL-A2C | 2 | 50 | 4000 |" in text
 
 
 def test_coinrun_csv_has_mean_and_std_over_seeds_per_level_set(full):

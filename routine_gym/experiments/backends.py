@@ -24,9 +24,17 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from routine_gym.experiments import read_json_object, utc_now
 from routine_gym.experiments.results import result_problem
-from routine_gym.experiments.training_curves import CURVE_BINS, curve_bins, read_episodic_returns
+from routine_gym.experiments.run_counters import counter_record
+from routine_gym.experiments.training_curves import (
+    CURVE_BINS,
+    RETURN_TAG,
+    curve_bins,
+    read_scalars,
+)
 from routine_gym.plumbing.atomic import atomic_write_text
 from routine_gym.plumbing.errors import UsageError, one_line
 
@@ -71,7 +79,10 @@ def command(config: dict[str, Any], runs: Path, cuda: bool = False,
         return [python, script, "--resume", str(checkpoints[-1].parent)]
     words = [python, script]
     for flag, value in config["flags"].items():
-        words += [f"--{flag}", *_resolve(value, runs, key)]
+        if isinstance(value, bool):  # the scripts' booleans are --flag / --no-flag
+            words.append(f"--{flag}" if value else f"--no-{flag}")
+        else:
+            words += [f"--{flag}", *_resolve(value, runs, key)]
     words += ["--run-dir", str(folder), "--torch-threads", "1"]
     if cuda:
         words.append("--cuda")
@@ -108,16 +119,24 @@ def _last_line(path: Path) -> str:
     return lines[-1] if lines else "(no output)"
 
 
-def _curve(run_dir: Path, total_steps: int) -> dict[str, Any] | None:
+def _curve_and_counters(run_dir: Path, config: dict[str, Any]
+                        ) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
     """The run's training episodes binned as the report bins them
     (`training_curves.curve_bins`), so a snapshot of `result.json`s draws Fig. 3 without the
-    TensorBoard logs; None without a budget."""
+    TensorBoard logs (None without a budget), and what the run counted (`counter_record`;
+    None for a script that counts nothing). A run whose budget counts decisions
+    (`--budget-unit decisions`) is binned up to the primitive steps it ran."""
+    scalars = read_scalars(run_dir)  # an event file is read whole, whichever tags are kept
+    total_steps = int(config.get("steps") or 0)
+    if config["flags"].get("budget-unit") == "decisions" and "counters/decisions" in scalars:
+        total_steps = int(scalars["counters/decisions"][0][-1])
     if total_steps <= 0:
-        return None
-    steps, returns = read_episodic_returns(run_dir)
-    sums, counts = curve_bins(steps, returns, total_steps)
-    return {"total_steps": total_steps, "bins": CURVE_BINS,
-            "sums": [round(float(v), 6) for v in sums], "counts": counts.tolist()}
+        return None, counter_record(scalars)
+    empty = (np.zeros(0, dtype=np.int64), np.zeros(0))
+    sums, counts = curve_bins(*scalars.get(RETURN_TAG, empty), total_steps)
+    curve = {"total_steps": total_steps, "bins": CURVE_BINS,
+             "sums": [round(float(v), 6) for v in sums], "counts": counts.tolist()}
+    return curve, counter_record(scalars, total_steps)
 
 
 def execute_run(config: dict[str, Any], runs_dir: str, cuda: bool = False) -> dict[str, Any]:
@@ -151,10 +170,12 @@ def execute_run(config: dict[str, Any], runs_dir: str, cuda: bool = False) -> di
     try:
         extra = {p.stem[len("eval-"):]: read_json_object(p)
                  for p in sorted(run_dir.glob("eval-*.json"))}
+        curve, counters = _curve_and_counters(run_dir, config)
         result = {"key": config["key"], "run_dir": run_dir.name,
-                  "eval": read_json_object(evals[-1]), "evals": extra,
-                  "curve": _curve(run_dir, int(config.get("steps") or 0)),
+                  "eval": read_json_object(evals[-1]), "evals": extra, "curve": curve,
                   "seconds": time.time() - start, "finished": utc_now()}
+        if counters is not None:
+            result["counters"] = counters
     except UsageError as exc:
         return {"key": config["key"], "error": one_line(exc)}
     problem = result_problem(result, config["key"])

@@ -16,7 +16,7 @@ import numpy as np
 from routine_gym.experiments.results import RunRecord
 
 __all__ = ["CURVE_BINS", "RETURN_TAG", "bin_curve", "curve_bins", "curve_folder",
-           "curve_values", "read_episodic_returns", "run_curve"]
+           "curve_values", "read_episodic_returns", "read_scalars", "run_curve"]
 
 #: Step bins of a training curve (Fig. 3) from 0 to the run's budget.
 CURVE_BINS = 50
@@ -30,27 +30,39 @@ def _event_file_order(path: Path) -> tuple[int, str]:
     return stamp, path.name
 
 
-def read_episodic_returns(folder: str | Path, tag: str = RETURN_TAG
-                          ) -> tuple[np.ndarray, np.ndarray]:
-    """`(steps, returns)` of the training episodes a run logged to TensorBoard under `tag`,
-    read from every event file in `folder`. A resumed run logs into a new file from its
-    checkpoint on; what an older file logged at or after the newer file's first step was
-    lost with the killed process and is dropped."""
+def read_scalars(folder: str | Path, tags: Sequence[str] | None = None
+                 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """`{tag: (steps, values)}` of the scalars a run logged to TensorBoard (every tag, or
+    `tags`), read from every event file in `folder`. A resumed run logs into a new file from
+    its checkpoint on; what an older file logged at or after the newer file's first step of a
+    tag was lost with the killed process and is dropped."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-    points: list[tuple[int, float]] = []
+    points: dict[str, list[tuple[int, float]]] = {}
     for path in sorted(Path(folder).glob("events.out.tfevents.*"), key=_event_file_order):
         events = EventAccumulator(str(path), size_guidance={"scalars": 0})
         events.Reload()
-        if tag not in events.Tags()["scalars"]:
-            continue
-        new = [(e.step, e.value) for e in events.Scalars(tag)]
-        if new:
-            first = min(step for step, _ in new)
-            points = [p for p in points if p[0] < first] + new
-    points.sort(key=lambda p: p[0])
-    return (np.array([p[0] for p in points], dtype=np.int64),
-            np.array([p[1] for p in points], dtype=np.float64))
+        for tag in events.Tags()["scalars"]:
+            if tags is not None and tag not in tags:
+                continue
+            new = [(e.step, e.value) for e in events.Scalars(tag)]
+            if new:
+                first = min(step for step, _ in new)
+                points[tag] = [p for p in points.get(tag, []) if p[0] < first] + new
+    out = {}
+    for tag, kept in points.items():
+        kept.sort(key=lambda p: p[0])
+        out[tag] = (np.array([p[0] for p in kept], dtype=np.int64),
+                    np.array([p[1] for p in kept], dtype=np.float64))
+    return out
+
+
+def read_episodic_returns(folder: str | Path, tag: str = RETURN_TAG
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """`(steps, returns)` of the training episodes a run logged to TensorBoard under `tag`
+    (`read_scalars`)."""
+    empty = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.float64))
+    return read_scalars(folder, [tag]).get(tag, empty)
 
 
 def curve_bins(steps: Sequence[int] | np.ndarray, returns: Sequence[float] | np.ndarray,

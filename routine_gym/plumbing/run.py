@@ -158,8 +158,9 @@ class Run:
         """The run's routine library, set up in one call: the resumed checkpoint's, else the
         best K of `--routine-library`, else mined from `demo` with the run's miner flags
         (`--num-routines`, `--proposer`, `--length-weight`, `--alpha`, `--seed`,
-        `--min-routine-length`, `--max-routine-length`). A library is printed with action names
-        (`meanings()`, called only then) and saved as the run's `routines.json`.
+        `--min-routine-length`, `--max-routine-length`, `--selection`). A library is printed
+        with action names (`meanings()`, called only then) and saved as the run's
+        `routines.json`.
 
         Args:
             demo: the demo to mine (None with `--routine-library`).
@@ -183,6 +184,8 @@ class Run:
                 seed=args.seed, min_length=getattr(args, "min_routine_length", 2),
                 source={"path": args.demo}, max_length=args.max_routine_length,
                 env_kwargs=env_kwargs, required=required,
+                **({"selection": args.selection}
+                   if getattr(args, "selection", "paper") != "paper" else {}),
             )
         if library is not None:
             print(library.describe(meanings() if meanings is not None else None))
@@ -190,15 +193,17 @@ class Run:
         return library
 
     def resume(self, state: dict[str, Any], *, extra: dict[str, Any] | None = None,
-               **counters: int) -> Any:
+               count: str | None = None, **counters: int) -> Any:
         """Name what the run's checkpoints hold; on `--resume`, put it back where it was.
 
         Args:
             state: the objects with a `state_dict` (models, optimizers), by checkpoint key.
             extra: values saved as they are (the routine library as JSON, ...); the script reads
                 them from `run.checkpoint` itself, before it builds what depends on them.
+            count: the counter `--checkpoint-every` counts (default: the first); a script
+                with `--budget-unit decisions` names its decision counter.
             counters: the step counters with their start values (`global_step=0,
-                iteration=0`); the first is the one `--checkpoint-every` counts.
+                iteration=0`); the first is the step counter `finish` reports.
 
         Returns:
             The counters' values (the saved ones on `--resume`), one int for one counter, else
@@ -206,6 +211,9 @@ class Run:
         """
         self._state, self._extra = dict(state), dict(extra or {})
         self._counter_names = tuple(counters)
+        self._count = count or self._counter_names[0]
+        if self._count not in counters:
+            raise ValueError(f"count={count!r} is not one of the counters {self._counter_names}")
         values = dict(counters)
         if self.checkpoint is not None:
             for key, target in self._state.items():
@@ -214,8 +222,7 @@ class Run:
             self.restore_rng()
             step = values[self._counter_names[0]]
             print(f"resumed {self.name} at step {step}")
-        self._checkpoints = Every(self.args.checkpoint_every,
-                                  start=values[self._counter_names[0]])
+        self._checkpoints = Every(self.args.checkpoint_every, start=values[self._count])
         out = tuple(values[name] for name in self._counter_names)
         return out[0] if len(out) == 1 else out
 
@@ -227,9 +234,9 @@ class Run:
         })
 
     def checkpoint_if_due(self, **counters: int) -> None:
-        """Save a checkpoint when the step counter (`resume`'s first) has passed the next
+        """Save a checkpoint when the counter `resume` named (its `count`) has passed the next
         multiple of `--checkpoint-every`; `counters` are the values of `resume`'s counters."""
-        if self._checkpoints.due(counters[self._counter_names[0]]):
+        if self._checkpoints.due(counters[self._count]):
             self._save_state(counters)
 
     def finish(self, policy: Callable[..., int], *, model: Any, method: str,
@@ -322,7 +329,8 @@ class Run:
 
 def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
               budget: str = "total_timesteps", lower_budget: bool = False,
-              extra_checks: ExtraChecks = ()) -> Run:
+              extra_checks: ExtraChecks = (), preset: Callable[[Any], None] | None = None
+              ) -> Run:
     """Check `args`, resume or make the run folder, open the writer, seed, pick the device.
 
     Args:
@@ -335,7 +343,11 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
             evaluation); by default it may only be raised.
         extra_checks: the script's own argument rules (see `check_args`); give a function of
             the `Args` so that the settings a `--resume` restores are checked by them too.
+        preset: sets the flags a preset flag stands for (`rapl_a2c.py --authors`) on a new
+            run's `Args`, before they are checked; a resumed run's saved settings hold them.
     """
+    if preset is not None and not args.resume:
+        preset(args)
     check_args(args, extra_checks)
     if getattr(args, "record_demo", None):
         check_writable(args.record_demo, "--record-demo")  # before training, not after

@@ -1,0 +1,103 @@
+"""What a run with temporally extended actions counts, so that it explains itself (SPEC §5).
+
+A RAPL-A2C run and an A2C run at the same budget of primitive agent steps make different
+numbers of decisions and of gradient updates: a decision that runs a routine of ℓ steps
+advances the step counter by ℓ. Every script with temporally extended actions (`rapl_a2c.py`,
+`option_critic.py`, `compile_a2c.py`) logs, at each update, with the primitive step count as
+TensorBoard's step:
+
+    counters/decisions            decisions so far (agent calls that chose an action, a routine
+                                  or an option; all envs together)
+    counters/updates              gradient updates so far
+    counters/steps_per_decision   primitive steps per decision since the previous update
+    counters/primitive_share      share of those decisions that chose a primitive action
+    counters/share_k              share of those decisions that chose routine (option) k
+
+and `charts/episodic_length` per episode, as CleanRL does. `--budget-unit decisions` makes
+`--total-timesteps`, the learning-rate schedule and `--checkpoint-every` count decisions
+instead of primitive steps (`budget_spent`). The sweep reads these tags back into each run's
+`result.json` (`routine_gym.experiments.run_counters`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+__all__ = ["COUNTER_TAGS", "Counters", "budget_spent"]
+
+#: The tags `Counters.log` writes (the per-routine shares are `counters/share_{k}`).
+COUNTER_TAGS = ("counters/decisions", "counters/updates", "counters/steps_per_decision",
+                "counters/primitive_share")
+
+
+def budget_spent(unit: str, global_step: int, decisions: int) -> int:
+    """What `--total-timesteps` counts: primitive agent steps, or decisions.
+
+    Example:
+        >>> budget_spent("steps", 120, 80), budget_spent("decisions", 120, 80)
+        (120, 80)
+    """
+    if unit == "steps":
+        return global_step
+    if unit == "decisions":
+        return decisions
+    raise ValueError(f"unknown budget unit {unit!r} (steps or decisions)")
+
+
+class Counters:
+    """The decisions a run made since its last update, logged with its totals at each update.
+
+    Args:
+        writer: the run's TensorBoard writer.
+        num_primitives: the primitive actions, choices `0 … num_primitives − 1`.
+        num_extended: the routines (options), choices `num_primitives …` on.
+
+    Example:
+        >>> counts = Counters(None, num_primitives=2, num_extended=1)
+        >>> counts.add(np.array([0, 2, 2, 1]), steps=1 + 3 + 3 + 1)
+        >>> counts.window()
+        {'steps_per_decision': 2.0, 'primitive_share': 0.5, 'shares': [0.5]}
+    """
+
+    def __init__(self, writer: Any, num_primitives: int, num_extended: int) -> None:
+        self.writer = writer
+        self.num_primitives = int(num_primitives)
+        self.num_extended = int(num_extended)
+        self._choices = np.zeros(self.num_primitives + self.num_extended, dtype=np.int64)
+        self._steps = 0
+
+    def add(self, choices: np.ndarray, steps: int) -> None:
+        """Count decisions (`choices`, each an index of the action space) and the primitive
+        steps that ran since the last call."""
+        self._choices += np.bincount(np.asarray(choices, dtype=np.int64),
+                                     minlength=len(self._choices))
+        self._steps += int(steps)
+
+    def add_steps(self, steps: int) -> None:
+        """Count primitive steps that ran with no new decision (an option that went on)."""
+        self._steps += int(steps)
+
+    def window(self) -> dict[str, Any]:
+        """Steps per decision and the shares of the decisions since the last `log`."""
+        made = int(self._choices.sum())
+        shares = self._choices / made if made else np.zeros(len(self._choices))
+        return {"steps_per_decision": self._steps / made if made else float("nan"),
+                "primitive_share": float(shares[: self.num_primitives].sum()),
+                "shares": [float(s) for s in shares[self.num_primitives:]]}
+
+    def log(self, global_step: int, decisions: int, updates: int) -> None:
+        """Write the totals and the window's rates at `global_step`, and start a new window."""
+        window = self.window()
+        w = self.writer
+        w.add_scalar("counters/decisions", decisions, global_step)
+        w.add_scalar("counters/updates", updates, global_step)
+        if self._choices.sum():
+            w.add_scalar("counters/steps_per_decision", window["steps_per_decision"],
+                         global_step)
+            w.add_scalar("counters/primitive_share", window["primitive_share"], global_step)
+            for k, share in enumerate(window["shares"]):
+                w.add_scalar(f"counters/share_{k}", share, global_step)
+        self._choices[:] = 0
+        self._steps = 0
