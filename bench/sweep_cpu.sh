@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# The cpu budget of the six experiments, one whole experiment after another (rl first), into
-# SWEEP; rerun the same command to continue after a kill or on a new machine. A SWEEP that does
+# The cpu budget of the seven experiments, one whole experiment after another (diagnosis first),
+# into SWEEP; rerun the same command to continue after a kill or on a new machine. A SWEEP that does
 # not exist yet starts as a copy of the committed snapshot (bench/results/experiments/cpu), so
 # runs finished in earlier sessions are not redone. Then snapshot it:
 #
@@ -18,8 +18,8 @@ if [ ! -e "$SWEEP" ] && [ -d "$SNAPSHOT/runs" ]; then
   mkdir -p "$(dirname "$SWEEP")"
   cp -r "$SNAPSHOT" "$SWEEP"
 fi
-for NAME in rl curves coinrun ablation imitation scalability; do
+for NAME in diagnosis rl curves coinrun ablation imitation scalability; do
   echo "=== $(date -u +%FT%TZ) $NAME"
   "$PYTHON" -m routine_gym.cli experiment run "$NAME" --budget "$BUDGET" --out "$SWEEP" --jobs "$JOBS"
 done
-echo "=== $(date -u +%FT%TZ) all six finished"
+echo "=== $(date -u +%FT%TZ) all seven finished"

@@ -1,4 +1,4 @@
-"""`routine-gym experiment`: the six experiments' specs, sweeps of real runs of the scripts at the
+"""`routine-gym experiment`: the seven experiments' specs, sweeps of real runs of the scripts at the
 `smoke` budget (locally and through a real local Ray instance), rerun, kill and resume, failed
 runs, and the report of a real sweep."""
 
@@ -21,14 +21,14 @@ from routine_gym.experiments.registry import EXPERIMENTS, build, count_runs
 from routine_gym.experiments.specs import BUDGETS, RunSpec
 from routine_gym.plumbing.errors import UsageError
 
-NAMES = ["imitation", "rl", "curves", "coinrun", "scalability", "ablation"]
+NAMES = ["imitation", "rl", "curves", "coinrun", "scalability", "ablation", "diagnosis"]
 CLI = [sys.executable, "-m", "routine_gym.cli"]
 REPO = Path(__file__).resolve().parents[1]
 
 
 # -- specs ---------------------------------------------------------------------------------------
 
-def test_the_six_experiments_and_three_budgets():
+def test_the_seven_experiments_and_three_budgets():
     assert list(EXPERIMENTS) == NAMES
     assert list(BUDGETS) == ["smoke", "cpu", "paper"]
     assert len(specs.PAPER_GAMES) == 30 and "ALE/WizardOfWor-v5" in specs.PAPER_GAMES
@@ -45,6 +45,9 @@ def test_the_six_experiments_and_three_budgets():
     ("scalability", 129, 129 * 10**6),
     # 5 games × 3 seeds × (A2C + Full RR PbE RF RP ID) + 5 ID experts of 5M / 10 steps
     ("ablation", 110, 105 * 10**6 + 5 * 500_000),
+    # 6 games × 3 seeds × (A2C, RAPL-A2C, and RAPL-A2C and MacroAction at a budget of 10^6
+    # decisions, RAPL-A2C as the authors' code has it)
+    ("diagnosis", 90, 90 * 10**6),
 ])
 def test_cpu_budget_run_counts_worked_out_by_hand(name, runs, steps):
     assert count_runs(name, "cpu") == (runs, steps)
@@ -193,7 +196,7 @@ def local_sweep(tmp_path_factory) -> tuple[Path, str]:
 
 
 @pytest.mark.slow
-def test_smoke_sweep_of_all_six_finishes_every_run(local_sweep):
+def test_smoke_sweep_of_all_seven_finishes_every_run(local_sweep):
     out, printed = local_sweep
     done = _results(out)
     for name in NAMES:
@@ -213,6 +216,20 @@ def test_smoke_sweep_of_all_six_finishes_every_run(local_sweep):
     (expert,) = [r for r in ablation if r["role"] == "expert"]
     assert (out / "runs" / expert["key"] / "demo.npz").is_file()
     assert "[ablation] runs 8/8 done, 0 running, 0 failed · agent steps 7,500/7,500" in printed
+    # Every rapl_a2c run keeps its counters: at 1,000 steps (or decisions) of 4 envs × 5,
+    # A2C and RAPL-A2C with the budget in decisions both make 50 updates of 20 decisions.
+    rows = json.loads((out / "diagnosis.json").read_text())["runs"]
+    counters = {(r["method"], r["variant"].get("diagnosis")):
+                json.loads((out / "runs" / r["key"] / "result.json").read_text())["counters"]
+                for r in rows}
+    for which in (("A2C", None), ("RAPL-A2C", "decisions"), ("MacroAction", "decisions")):
+        assert (counters[which]["updates"], counters[which]["decisions"]) == (50, 1000), which
+    assert counters[("A2C", None)]["steps_per_decision"] == 1.0
+    assert counters[("RAPL-A2C", "decisions")]["primitive_steps"] > 1000
+    assert counters[("RAPL-A2C", None)]["updates"] < 50
+    assert counters[("RAPL-A2C", None)]["bins"]["updates"][-1] == counters[("RAPL-A2C", None)][
+        "updates"]
+    assert "[diagnosis] runs 5/5 done" in printed
 
 
 @pytest.mark.slow
@@ -227,14 +244,14 @@ def test_rerunning_a_finished_sweep_is_a_no_op(local_sweep):
 
 
 @pytest.mark.slow
-def test_report_of_a_real_smoke_sweep_writes_six_figures_csvs_and_report_md(local_sweep):
+def test_report_of_a_real_smoke_sweep_writes_seven_figures_csvs_and_report_md(local_sweep):
     out, _ = local_sweep
     proc = subprocess.run([*CLI, "experiment", "report", str(out)], capture_output=True,
                           text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     report = out / "report"
     for stem in ("table1_imitation", "fig2_rl", "fig3_curves", "fig4_coinrun",
-                 "fig5_scalability", "fig6_ablation"):
+                 "fig5_scalability", "fig6_ablation", "diagnosis"):
         png = (report / f"{stem}.png").read_bytes()
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000, stem
         assert (report / f"{stem}.csv").read_text().count(",") >= 2, stem  # a header at least
@@ -243,7 +260,7 @@ def test_report_of_a_real_smoke_sweep_writes_six_figures_csvs_and_report_md(loca
     assert {r.split(",")[0] for r in rows[1:]} >= {"Full", "RR", "PbE", "RF", "ID", "RP"}
     text = (report / "report.md").read_text()
     assert "Budget: **smoke**" in text
-    for heading in ("Table 1", "Fig. 2", "Fig. 3", "Fig. 4", "Fig. 5", "Fig. 6"):
+    for heading in ("Table 1", "Fig. 2", "Fig. 3", "Fig. 4", "Fig. 5", "Fig. 6", "Diagnosis"):
         assert f"## {heading} " in text
     assert "8 of 8 runs finished" in text
 
@@ -425,6 +442,7 @@ def test_cli_list_shows_every_experiment_with_its_runs_per_budget():
         assert name in rows
     assert "36 runs 36.0M steps" in rows["rl"] and "325 runs" in rows["rl"]
     assert "110 runs" in rows["ablation"]
+    assert "90 runs 90.0M steps" in rows["diagnosis"]
 
 
 def test_a_sweep_of_some_seeds_lists_the_whole_experiment(tmp_path, monkeypatch):

@@ -537,7 +537,7 @@ def test_cli_all_runs_the_experiments_that_have_the_games_asked_for(tmp_path):
     assert sweep.plan("all", "smoke", envs=["MinAtar/Freeway-v1"]) == [
         ("ablation", ["MinAtar/Freeway-v1"])]
     assert [n for n, _ in sweep.plan("all", "cpu", envs=["MiniQbert-v0", BREAKOUT])] == [
-        "imitation", "rl", "curves", "scalability", "ablation"]
+        "imitation", "rl", "curves", "scalability", "ablation", "diagnosis"]
     assert sweep.plan("all", "cpu", envs=["procgen/CoinRun-v0"]) == [
         ("coinrun", ["procgen/CoinRun-v0"])]
     assert [n for n, e in sweep.plan("all", "cpu")] == list(registry.EXPERIMENTS)

@@ -15,7 +15,15 @@ from dataclasses import replace
 from typing import Any
 
 from routine_gym.experiments.experiment import Experiment
-from routine_gym.experiments.paper import ablation, coinrun, curves, imitation, rl, scalability
+from routine_gym.experiments.paper import (
+    ablation,
+    coinrun,
+    curves,
+    diagnosis,
+    imitation,
+    rl,
+    scalability,
+)
 from routine_gym.experiments.specs import BUDGETS, Builder, Entry
 from routine_gym.plumbing.errors import UsageError
 
@@ -43,6 +51,7 @@ register(curves.EXPERIMENT)
 register(coinrun.EXPERIMENT)
 register(scalability.EXPERIMENT)
 register(ablation.EXPERIMENT)
+register(diagnosis.EXPERIMENT)
 
 
 def build(name: str, budget: str, seeds: Sequence[int] | None = None,

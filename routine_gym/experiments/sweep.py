@@ -59,7 +59,8 @@ from routine_gym.plumbing.errors import UsageError, one_line
 __all__ = ["CONNECT_TIMEOUT", "SweepSummary", "check_options", "check_ray_address", "plan",
            "run_experiment"]
 
-_STEP_LINE = re.compile(rb"step\s+([\d,]+)/")
+#: A run's progress line: `step N/TOTAL`, or `decision N/TOTAL` with a budget in decisions.
+_STEP_LINE = re.compile(rb"(?:step|decision)\s+([\d,]+)/")
 
 
 # -- the sweep ----------------------------------------------------------------------------------
@@ -114,7 +115,8 @@ def _write_manifest(out: Path, name: str, budget: str, entries: Sequence[Entry])
 
 
 def _steps_done(runs: Path, key: str) -> int:
-    """The last `step N/` a run printed (0 before its first progress line)."""
+    """The last `step N/` (or `decision N/`) a run printed (0 before its first progress
+    line)."""
     found = _STEP_LINE.findall(file_tail(runs / key / "log.txt", 8192) or b"")
     return int(found[-1].replace(b",", b"")) if found else 0
 

@@ -111,5 +111,5 @@ def section(w: Writer, runs: list[RunRecord]) -> list[str]:
 
 
 EXPERIMENT = Experiment(
-    name="rl", version=1, title="RL: relative performance of RAPL-A2C over A2C per game",
+    name="rl", version=2, title="RL: relative performance of RAPL-A2C over A2C per game",
     figure="Fig. 2", file=FILE, add_runs=add_runs, section=section, methods=METHODS)
