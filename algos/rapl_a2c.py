@@ -224,21 +224,23 @@ AUTHORS_PRESET = {"routine_discount": "authors", "critic_loss": "authors",
                   "prim_states": "first-n", "anneal_lr": False, "selection": "authors"}
 
 
+def _as_flag(field: str, value) -> str:
+    """A field's value as typed: `--critic-loss authors`, `--no-anneal-lr`."""
+    name = field.replace("_", "-")
+    if isinstance(value, bool):
+        return f"--{name}" if value else f"--no-{name}"
+    return f"--{name} {value}"
+
+
 def authors_preset(args: Args) -> None:
     """`--authors`: set every flag of the authors' variant, refusing one given otherwise."""
     if not args.authors:
         return
-    def flag(field: str, value) -> str:
-        name = field.replace("_", "-")
-        if isinstance(value, bool):
-            return f"--{name}" if value else f"--no-{name}"
-        return f"--{name} {value}"
-
     given = given_flags()
     for field, value in AUTHORS_PRESET.items():
         if field in given and getattr(args, field) != value:
-            raise UsageError(f"--authors sets {flag(field, value)}; drop "
-                             f"{flag(field, getattr(args, field))} or --authors")
+            raise UsageError(f"--authors sets {_as_flag(field, value)}; drop "
+                             f"{_as_flag(field, getattr(args, field))} or --authors")
         setattr(args, field, value)
 
 
