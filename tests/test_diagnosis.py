@@ -381,9 +381,13 @@ def test_the_verdict_per_game_worked_out_by_hand(tmp_path):
     assert len(per_run) == 1 + 4 * 2 * 5
 
 
-def test_closes_is_within_one_standard_error():
-    assert diagnosis.closes(9.0, 10.0, 1.0) and not diagnosis.closes(8.99, 10.0, 1.0)
-    assert diagnosis.closes(11.0, 10.0, math.nan) and not diagnosis.closes(math.nan, 1.0, 1.0)
+def test_closes_is_within_the_larger_standard_error():
+    assert diagnosis.closes(9.0, 0.0, 10.0, 1.0) and not diagnosis.closes(8.99, 0.0, 10.0, 1.0)
+    # A2C at a ceiling (no spread) and a variant one seed below it: level within its own error.
+    assert diagnosis.closes(1043.3, 6.7, 1050.0, 0.0)
+    assert not diagnosis.closes(1043.3, 6.7, 1050.0 + 6.8, 0.0)
+    assert diagnosis.closes(11.0, math.nan, 10.0, math.nan)
+    assert not diagnosis.closes(math.nan, 1.0, 1.0, 1.0)
 
 
 def test_specs_scale_only_the_scripts_that_have_the_flag():

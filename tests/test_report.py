@@ -361,7 +361,7 @@ def test_every_figure_is_a_valid_png_with_its_csv(full):
 def test_diagnosis_csvs_give_the_verdict_and_each_runs_counters(full):
     out, _, _ = full
     (row,) = _rows(out / "report" / "diagnosis.csv")
-    # A2C 5 ± 1; RAPL 2; at A2C's updates 5: within one standard error, update-starved.
+    # A2C 5 ± 1; RAPL 2; at A2C's updates 5: level within a standard error: update-starved.
     assert float(row["A2C mean"]) == 5.0 and float(row["A2C se"]) == 1.0
     assert float(row["RAPL-A2C, decisions budget mean"]) == 5.0
     assert row["verdict"] == "update-starved (the decisions budget closes the gap)"

@@ -74,15 +74,19 @@ class GameRow(NamedTuple):
     verdict: str
 
 
-def closes(score: float, a2c: float, a2c_error: float) -> bool:
-    """Whether a variant closes the gap to A2C: its mean within one standard error of A2C's
-    mean (over seeds) or above it.
+def closes(score: float, error: float, a2c: float, a2c_error: float) -> bool:
+    """Whether a variant closes the gap to A2C: its mean at least A2C's less the larger of the
+    two standard errors over seeds (a NaN error counts as 0), so a variant and A2C whose
+    spreads overlap by that much are level.
 
     Example:
-        >>> closes(9.5, 10.0, 1.0), closes(8.0, 10.0, 1.0)
-        (True, False)
+        >>> closes(9.5, 0.0, 10.0, 1.0), closes(8.0, 0.0, 10.0, 1.0), closes(8.0, 2.5, 10.0, 0.0)
+        (True, False, True)
     """
-    return math.isfinite(score) and score >= a2c - (a2c_error if math.isfinite(a2c_error) else 0)
+    def finite(x: float) -> float:
+        return x if math.isfinite(x) else 0.0
+
+    return math.isfinite(score) and score >= a2c - max(finite(error), finite(a2c_error))
 
 
 def verdict(means: dict[str, float], errors: dict[str, float]) -> str:
@@ -95,13 +99,17 @@ def verdict(means: dict[str, float], errors: dict[str, float]) -> str:
     a2c, rapl = means.get("A2C", math.nan), means.get("RAPL-A2C", math.nan)
     if not (math.isfinite(a2c) and math.isfinite(rapl)):
         return "not enough runs"
-    error = errors.get("A2C", math.nan)
-    if closes(rapl, a2c, error):
-        return "no gap (RAPL-A2C within one standard error of A2C, or above)"
+
+    def reaches(variant: str) -> bool:
+        return closes(means.get(variant, math.nan), errors.get(variant, math.nan), a2c,
+                      errors.get("A2C", math.nan))
+
+    if reaches("RAPL-A2C"):
+        return "no gap (RAPL-A2C level with A2C within a standard error, or above)"
     found = []
-    if closes(means.get(DECISIONS, math.nan), a2c, error):
+    if reaches(DECISIONS):
         found.append("update-starved (the decisions budget closes the gap)")
-    if closes(means.get(AUTHORS, math.nan), a2c, error):
+    if reaches(AUTHORS):
         found.append("implementation choices (the authors' code closes the gap)")
     if found:
         return "; ".join(found)
@@ -170,8 +178,9 @@ def section(w: Writer, runs: list[RunRecord]) -> list[str]:
              "docstring): the decisions budget gives RAPL as many gradient updates as A2C; the "
              "authors' code changes what SPEC §5b lists; MacroAction at the decisions budget "
              "uses the same routines as black boxes. S = mean over seeds of the final "
-             "evaluation's mean return; a variant *closes the gap* when its S is within one "
-             "standard error of A2C's or above.", "",
+             "evaluation's mean return ± its standard error over seeds; a variant *closes the "
+             "gap* when its S is at least A2C's less the larger of the two standard errors.",
+             "",
              *table(("game", *variants, "verdict"),
                     [(g, *(f"{num(row.means[v], 1)} ± {num(row.errors[v], 1)}"
                            for v in variants), row.verdict)
