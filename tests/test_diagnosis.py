@@ -388,6 +388,12 @@ def test_closes_is_within_the_larger_standard_error():
     assert not diagnosis.closes(1043.3, 6.7, 1050.0 + 6.8, 0.0)
     assert diagnosis.closes(11.0, math.nan, 10.0, math.nan)
     assert not diagnosis.closes(math.nan, 1.0, 1.0, 1.0)
+    # MiniQbert: RAPL 1050, 1050, 1043.33 (mean 1047.78, s.e. 2.22) against A2C's 1050 ± 0.
+    scores = [1050.0, 1050.0, 1043.0 + 1 / 3]
+    error = float(np.std(scores, ddof=1) / np.sqrt(3))
+    assert diagnosis.closes(float(np.mean(scores)), error, 1050.0, 0.0)
+    assert diagnosis.verdict({"A2C": 10.0, "RAPL-A2C": 5.0, diagnosis.AUTHORS: 6.0},
+                             {"A2C": 0.5}) == "not yet: a variant has no finished run"
 
 
 def test_specs_scale_only_the_scripts_that_have_the_flag():

@@ -86,7 +86,8 @@ def closes(score: float, error: float, a2c: float, a2c_error: float) -> bool:
     def finite(x: float) -> float:
         return x if math.isfinite(x) else 0.0
 
-    return math.isfinite(score) and score >= a2c - max(finite(error), finite(a2c_error))
+    margin = max(finite(error), finite(a2c_error)) + 1e-9 * max(1.0, abs(a2c))  # rounding
+    return math.isfinite(score) and score >= a2c - margin
 
 
 def verdict(means: dict[str, float], errors: dict[str, float]) -> str:
@@ -106,6 +107,8 @@ def verdict(means: dict[str, float], errors: dict[str, float]) -> str:
 
     if reaches("RAPL-A2C"):
         return "no gap (RAPL-A2C level with A2C within a standard error, or above)"
+    if not all(math.isfinite(means.get(v, math.nan)) for v in (DECISIONS, AUTHORS)):
+        return "not yet: a variant has no finished run"
     found = []
     if reaches(DECISIONS):
         found.append("update-starved (the decisions budget closes the gap)")
