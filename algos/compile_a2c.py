@@ -73,7 +73,7 @@ from routine_gym.baselines.compile import (
 from routine_gym.envs.factory import make_env
 from routine_gym.imitation.agent_view import agent_view_states, decision_steps
 from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.plumbing.counters import Counters, budget_spent
+from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent
 from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.loading import load_demo
 from routine_gym.plumbing.run import Every, eval_env_kwargs, run_script, start_run, train_env_kwargs
@@ -427,9 +427,8 @@ def main(args: Args) -> dict | None:
         spent = budget_spent(args.budget_unit, global_step, decisions)
         if logs.due(spent) or spent >= args.total_timesteps:
             mean_ret = f"{np.mean(recent_returns[-20:]):.1f}" if recent_returns else "n/a"
-            progress = f"step {global_step:>10,d}/{args.total_timesteps:,d}" \
-                if args.budget_unit == "steps" else \
-                f"decision {decisions:>10,d}/{args.total_timesteps:,d}  step {global_step:,d}"
+            progress = budget_progress(args.budget_unit, global_step, decisions,
+                                       args.total_timesteps)
             print(f"{progress}  SPS {sps:>5d}  "
                   f"return(last 20) {mean_ret:>8s}  episodes {len(recent_returns):>5d}  "
                   f"option use {usage[num_primitives:].sum():5.1%}", flush=True)

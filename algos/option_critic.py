@@ -46,7 +46,7 @@ from routine_gym.baselines.option_critic import (
 )
 from routine_gym.envs.factory import make_env
 from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.plumbing.counters import Counters, budget_spent
+from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent
 from routine_gym.plumbing.run import Every, eval_env_kwargs, run_script, start_run, train_env_kwargs
 
 
@@ -310,9 +310,8 @@ def main(args: Args) -> dict | None:
                 writer.add_scalar("options/duration", duration, global_step)
             finished_lengths = []
             mean_ret = f"{np.mean(recent_returns[-20:]):.1f}" if recent_returns else "n/a"
-            progress = f"step {global_step:>10,d}/{args.total_timesteps:,d}" \
-                if args.budget_unit == "steps" else \
-                f"decision {decisions:>10,d}/{args.total_timesteps:,d}  step {global_step:,d}"
+            progress = budget_progress(args.budget_unit, global_step, decisions,
+                                       args.total_timesteps)
             print(f"{progress}  SPS {int((global_step - start_step) / elapsed):>5d}  "
                   f"return(last 20) {mean_ret:>8s}  episodes {len(recent_returns):>5d}  "
                   f"option duration {duration:5.1f}", flush=True)

@@ -45,7 +45,7 @@ import routine_gym
 from routine_gym.envs.factory import make_env, make_primitive_env
 from routine_gym.networks import ObservationEncoder, layer_init
 from routine_gym.plumbing.arguments import given_flags
-from routine_gym.plumbing.counters import Counters, budget_spent
+from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent
 from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.loading import load_demo
 from routine_gym.plumbing.run import (
@@ -465,9 +465,8 @@ def main(args: Args) -> None:
         if logs.due(spent) or spent >= args.total_timesteps:
             mean_ret = f"{np.mean(recent_returns[-20:]):.1f}" if recent_returns else "n/a"
             usage = routine_counts[num_primitives:].sum() / max(routine_counts.sum(), 1)
-            progress = f"step {global_step:>10,d}/{args.total_timesteps:,d}" \
-                if args.budget_unit == "steps" else \
-                f"decision {decisions:>10,d}/{args.total_timesteps:,d}  step {global_step:,d}"
+            progress = budget_progress(args.budget_unit, global_step, decisions,
+                                       args.total_timesteps)
             print(f"{progress}  "
                   f"SPS {int((global_step - start_step) / elapsed):>5d}  "
                   f"return(last 20) {mean_ret:>8s}  episodes {len(recent_returns):>5d}  "

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["COUNTER_TAGS", "Counters", "budget_spent"]
+__all__ = ["COUNTER_TAGS", "Counters", "budget_progress", "budget_spent"]
 
 #: The tags `Counters.log` writes (the per-routine shares are `counters/share_{k}`).
 COUNTER_TAGS = ("counters/decisions", "counters/updates", "counters/steps_per_decision",
@@ -44,6 +44,21 @@ def budget_spent(unit: str, global_step: int, decisions: int) -> int:
     if unit == "decisions":
         return decisions
     raise ValueError(f"unknown budget unit {unit!r} (steps or decisions)")
+
+
+def budget_progress(unit: str, global_step: int, decisions: int, total: int) -> str:
+    """The start of a progress line: where the run is in its budget (the sweep reads
+    `step N/` or `decision N/` from it).
+
+    Example:
+        >>> budget_progress("steps", 1200, 800, 5000)
+        'step      1,200/5,000'
+        >>> budget_progress("decisions", 1200, 800, 5000)
+        'decision        800/5,000  step 1,200'
+    """
+    if unit == "decisions":
+        return f"decision {decisions:>10,d}/{total:,d}  step {global_step:,d}"
+    return f"step {global_step:>10,d}/{total:,d}"
 
 
 class Counters:
