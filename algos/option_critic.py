@@ -44,7 +44,7 @@ from routine_gym.baselines.option_critic import (
     termination_advantage,
     value_upon_arrival,
 )
-from routine_gym.envs.factory import make_env
+from routine_gym.envs.factory import make_vector_env
 from routine_gym.networks import ObservationEncoder, layer_init
 from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent
 from routine_gym.plumbing.run import Every, eval_env_kwargs, run_script, start_run, train_env_kwargs
@@ -170,11 +170,9 @@ def main(args: Args) -> dict | None:
     args, device, rng, writer = run.args, run.device, run.rng, run.writer
 
     # Env setup: same-step autoreset, so the step that ends an episode returns the reset obs.
-    envs = gym.vector.SyncVectorEnv(
-        [make_env(args.env_id, args.seed, i, training=True, env_kwargs=train_env_kwargs(args))
-         for i in range(args.num_envs)],
-        autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
-    )
+    # (MinAtar: all games stepped in one call, `routine_gym.envs.minatar_vector`.)
+    envs = make_vector_env(args.env_id, args.num_envs, args.seed, training=True,
+                           env_kwargs=train_env_kwargs(args))
     if not isinstance(envs.single_action_space, gym.spaces.Discrete):
         raise ValueError(f"option_critic.py needs a Discrete action space; {args.env_id} has "
                          f"{envs.single_action_space}")

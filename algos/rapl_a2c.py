@@ -42,7 +42,7 @@ import torch.nn as nn
 from torch.distributions.categorical import Categorical
 
 import routine_gym
-from routine_gym.envs.factory import make_env, make_primitive_env
+from routine_gym.envs.factory import make_primitive_env, make_vector_env
 from routine_gym.networks import ObservationEncoder, layer_init
 from routine_gym.plumbing.arguments import given_flags
 from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent
@@ -287,14 +287,11 @@ def main(args: Args) -> None:
                                env_kwargs=train_env_kwargs(args), required=f"--mode {args.mode}")
 
     # Env setup: same-step autoreset, so the step that ends an episode returns the reset obs.
-    thunks = [
-        make_env(args.env_id, args.seed, i, routines=library, training=True,
-                 record_observations=args.mode == "rapl", env_kwargs=train_env_kwargs(args),
-                 capture_video=args.capture_video, run_name=run.name)
-        for i in range(args.num_envs)
-    ]
-    vector_cls = gym.vector.AsyncVectorEnv if args.async_envs else gym.vector.SyncVectorEnv
-    envs = vector_cls(thunks, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
+    # (MinAtar: all games stepped in one call, `routine_gym.envs.minatar_vector`.)
+    envs = make_vector_env(args.env_id, args.num_envs, args.seed, routines=library,
+                           training=True, record_observations=args.mode == "rapl",
+                           env_kwargs=train_env_kwargs(args), capture_video=args.capture_video,
+                           run_name=run.name, async_envs=args.async_envs)
     assert isinstance(envs.single_action_space, gym.spaces.Discrete), "only discrete actions"
     num_actions = int(envs.single_action_space.n)
     num_routines = len(library) if library is not None else 0

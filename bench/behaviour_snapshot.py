@@ -4,9 +4,10 @@
     python bench/behaviour_snapshot.py record AFTER       # after it
     python bench/behaviour_snapshot.py compare BEFORE AFTER
 
-`record` trains every script (every mode of `rapl_a2c.py`) for a short, seeded MiniQbert run with
-one torch thread and keeps every TensorBoard scalar but the wall-clock ones (`charts/SPS`), each
-as its exact float32 bits; then it copies the committed cpu sweep
+`record` trains every script (every mode of `rapl_a2c.py`) for a short, seeded MiniQbert run,
+and `rapl_a2c.py` (every mode) and `option_critic.py` on MinAtar/Breakout-v1 (its batched
+vector env), with one torch thread and keeps every TensorBoard scalar but the wall-clock ones
+(`charts/SPS`), each as its exact float32 bits; then it copies the committed cpu sweep
 (`bench/results/experiments/cpu`), runs `routine-gym experiment report` on the copy and keeps
 its CSVs. `compare` says, per script and per CSV, whether the two are identical, and exits 1
 when one is not; tags only the second record has (a new counter) are listed, not compared.
@@ -27,8 +28,12 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parent.parent
 SNAPSHOT = REPO / "bench" / "results" / "experiments" / "cpu"
 DEMO = str(REPO / "demos" / "MiniQbert-v0.npz")
-COMMON = ["--env-id", "MiniQbert-v0", "--seed", "3", "--torch-threads", "1",
-          "--eval-episodes", "2", "--checkpoint-every", "0"]
+COMMON = ["--seed", "3", "--torch-threads", "1", "--eval-episodes", "2",
+          "--checkpoint-every", "0"]
+#: The env of a run whose flags name none.
+DEFAULT_ENV = ["--env-id", "MiniQbert-v0"]
+MINATAR = ["--env-id", "MinAtar/Breakout-v1", "--num-envs", "16", "--total-timesteps", "8000"]
+MINATAR_DEMO = str(REPO / "demos" / "MinAtar-Breakout-v1.npz")
 #: (name, script, flags): every script and mode, a few hundred updates each.
 RUNS = [
     ("rapl_a2c-a2c", "rapl_a2c", ["--mode", "a2c", "--num-envs", "4", "--total-timesteps", "4000"]),
@@ -47,6 +52,12 @@ RUNS = [
     ("option_critic", "option_critic", ["--num-envs", "4", "--total-timesteps", "4000"]),
     ("compile_a2c", "compile_a2c", ["--demo", DEMO, "--num-envs", "4",
                                     "--total-timesteps", "4000", "--compile-iterations", "50"]),
+    # MinAtar: the batched vector env (routine_gym.envs.minatar_vector) of the speed work.
+    ("minatar-a2c", "rapl_a2c", [*MINATAR, "--mode", "a2c"]),
+    ("minatar-rapl", "rapl_a2c", [*MINATAR, "--mode", "rapl", "--demo", MINATAR_DEMO]),
+    ("minatar-macro", "rapl_a2c", [*MINATAR, "--mode", "macro", "--demo", MINATAR_DEMO]),
+    ("minatar-authors", "rapl_a2c", [*MINATAR, "--authors", "--demo", MINATAR_DEMO]),
+    ("minatar-option_critic", "option_critic", [*MINATAR]),
 ]
 WALL_CLOCK = {"charts/SPS", "charts/decisions_per_second"}
 
@@ -72,7 +83,8 @@ def record(dest: Path) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for name, script, flags in RUNS:
             run_dir = Path(tmp) / name
-            words = [sys.executable, str(REPO / "algos" / f"{script}.py"), *COMMON, *flags,
+            env = [] if "--env-id" in flags else DEFAULT_ENV
+            words = [sys.executable, str(REPO / "algos" / f"{script}.py"), *env, *COMMON, *flags,
                      "--run-dir", str(run_dir)]
             proc = subprocess.run(words, capture_output=True, text=True)
             if proc.returncode != 0:
@@ -104,6 +116,9 @@ def _digest(path: Path) -> str:
 def compare(before: Path, after: Path) -> int:
     differ = 0
     for name, _, _ in RUNS:
+        if not (before / f"{name}.json").is_file():
+            print(f"{name:16s} not in {before} (recorded before the run was added)")
+            continue
         a, b = (json.loads((d / f"{name}.json").read_text()) for d in (before, after))
         for kept in (a, b):  # a record made with fewer wall-clock tags left out
             kept["scalars"] = {t: v for t, v in kept["scalars"].items() if t not in WALL_CLOCK}

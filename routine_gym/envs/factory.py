@@ -27,6 +27,7 @@ from routine_gym.envs import profile_for
 __all__ = [
     "default_env_kwargs",
     "make_env",
+    "make_vector_env",
     "make_primitive_env",
     "preprocess",
     "preprocess_observation",
@@ -119,3 +120,39 @@ def make_env(
         return env
 
     return thunk
+
+
+def make_vector_env(
+    env_id: str,
+    num_envs: int,
+    seed: int = 0,
+    *,
+    routines: Sequence[Sequence[int]] | None = None,
+    training: bool = True,
+    record_observations: bool = False,
+    env_kwargs: dict[str, Any] | None = None,
+    capture_video: bool = False,
+    run_name: str = "",
+    async_envs: bool = False,
+    batched: bool = True,
+) -> gym.vector.VectorEnv:
+    """The training scripts' vector env of `num_envs` `make_env` envs, same-step autoreset.
+
+    A family with a vector env of its own (`EnvProfile.vector_env`: MinAtar's
+    `MinAtarVectorEnv`) steps all envs in one call; it returns what the `SyncVectorEnv` of
+    `make_env` thunks returns. The thunks' `SyncVectorEnv` (or `AsyncVectorEnv` with
+    `async_envs`, subprocesses) is used for every other family, for video capture, and with
+    `batched=False`.
+    """
+    if batched and not async_envs and not capture_video:
+        envs = profile_for(env_id).vector_env(
+            env_id, num_envs, routines=routines, record_observations=record_observations,
+            env_kwargs=env_kwargs, training=training)
+        if envs is not None:
+            return envs
+    thunks = [make_env(env_id, seed, i, routines=routines, training=training,
+                       record_observations=record_observations, env_kwargs=env_kwargs,
+                       capture_video=capture_video, run_name=run_name)
+              for i in range(num_envs)]
+    vector_cls = gym.vector.AsyncVectorEnv if async_envs else gym.vector.SyncVectorEnv
+    return vector_cls(thunks, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)

@@ -178,6 +178,14 @@ class MinAtarProfile(EnvProfile):
     def play_fps(self, env: gym.Env) -> int | None:
         return 10
 
+    def vector_env(self, env_id: str, num_envs: int, *, routines: Any = None,
+                   record_observations: bool = False, env_kwargs: dict[str, Any] | None = None,
+                   training: bool = True) -> gym.vector.VectorEnv | None:
+        from routine_gym.envs.minatar_vector import MinAtarVectorEnv
+
+        return MinAtarVectorEnv(env_id, num_envs, routines=routines,
+                                record_observations=record_observations, env_kwargs=env_kwargs)
+
 
 PROFILE = MinAtarProfile()
 

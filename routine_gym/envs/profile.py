@@ -64,6 +64,14 @@ class EnvProfile:
         agent's states)."""
         return env
 
+    def vector_env(self, env_id: str, num_envs: int, *, routines: Any = None,
+                   record_observations: bool = False, env_kwargs: dict[str, Any] | None = None,
+                   training: bool = True) -> gym.vector.VectorEnv | None:
+        """A vector env of the family's own that steps `num_envs` envs of the agent's view in
+        one call (same-step autoreset, the `make_env` stack's observations, rewards and info),
+        or None: the generic `SyncVectorEnv` of `make_env` thunks (`make_vector_env`)."""
+        return None
+
     def recording_stacks(self, env_id: str) -> dict[str, Callable[[gym.Env], gym.Env]]:
         """The stacks a demo may have been recorded under, newest first (`routine-gym
         upgrade`): `agent`, the evaluation view `rapl_a2c.py --record-demo` records under, and

@@ -1,0 +1,266 @@
+"""`MinAtarVectorEnv`: N MinAtar games, with the routines of a library, stepped in one call.
+
+The Python path of a training script builds each env as a stack of Gymnasium wrappers
+(`MinAtarEnv`, `PassiveEnvChecker`, `OrderEnforcing`, `TimeLimit`, `RecordEpisodeStatistics`,
+the channels-first view, `RoutineActionWrapper`) and steps them one at a time in a
+`SyncVectorEnv`, which then merges 16 `info` dicts key by key. On MinAtar the games themselves
+are a small part of that: most of the time is the wrappers' Python and the merging. This vector
+env does the same work in one loop over the games, with every layer of that stack written out
+once:
+
+- each game runs the primitive action or the routine it was given (a routine stops early at the
+  end of an episode), counting the episode's steps against the time limit (truncation) and its
+  return and length (`info["episode"]`, as `RecordEpisodeStatistics`);
+- the observations of all games are turned channels-first float32 in one numpy call;
+- the step's `info` is built directly as the vector env's: the ``routine_*`` keys of
+  `routine_gym.macro_info` (with routines), `final_obs` and `final_info` of the envs whose
+  episode ended, each with its `_key` mask, exactly as `SyncVectorEnv` with same-step autoreset
+  arranges them.
+
+`tests/test_minatar_vector.py` checks, on fixed seeds and actions, that it returns what the
+Python path returns (observations, rewards, flags and every info array), for plain actions and
+routines, episode ends and truncations. `routine_gym.envs.factory.make_vector_env` picks it for
+`MinAtar/*` ids; the Python path stays for video capture and `--async-envs`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+
+from routine_gym.envs.minatar import MinAtarEnv
+from routine_gym.macro_info import PAD_ACTION
+
+__all__ = ["MinAtarVectorEnv"]
+
+
+class MinAtarVectorEnv(VectorEnv):
+    """`num_envs` MinAtar games of `env_id` as one vector env, same-step autoreset.
+
+    Example:
+        >>> import routine_gym
+        >>> from routine_gym.envs.minatar_vector import MinAtarVectorEnv
+        >>> envs = MinAtarVectorEnv("MinAtar/Breakout-v1", 4, routines=[[1, 1, 2]])
+        >>> obs, info = envs.reset(seed=0)
+        >>> obs.shape, obs.dtype, envs.single_action_space
+        ((4, 4, 10, 10), dtype('float32'), Discrete(4))
+        >>> obs, reward, terminated, truncated, info = envs.step(np.array([0, 3, 3, 1]))
+        >>> info["routine_length"].tolist(), info["routine_index"].tolist()
+        ([1, 3, 3, 1], [-1, 0, 0, -1])
+        >>> info["routine_actions"][1].tolist()
+        [1, 1, 2]
+
+    Args:
+        env_id: a registered `MinAtar/*` id.
+        num_envs: the number of games.
+        routines: the routines to add as actions (a `RoutineLibrary` or action sequences), or
+            None for the primitive actions alone (then `info` has no ``routine_*`` keys).
+        record_observations: with routines, return each inner step's observation in
+            ``info["routine_observations"]``.
+        env_kwargs: `gym.make` keyword arguments (`sticky_action_prob`, `difficulty_ramping`,
+            `max_episode_steps`).
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}
+
+    def __init__(self, env_id: str, num_envs: int, *,
+                 routines: Sequence[Sequence[int]] | None = None,
+                 record_observations: bool = False,
+                 env_kwargs: dict[str, Any] | None = None) -> None:
+        from routine_gym.wrapper import _validate_routines
+
+        spec = gym.spec(env_id)
+        if spec.entry_point != "routine_gym.envs.minatar:MinAtarEnv":
+            raise ValueError(f"MinAtarVectorEnv runs MinAtar's games, not {env_id!r}")
+        kwargs = {**spec.kwargs, **(env_kwargs or {})}
+        self.max_episode_steps = kwargs.pop("max_episode_steps", spec.max_episode_steps)
+        self.games = [MinAtarEnv(**kwargs) for _ in range(num_envs)]
+        self.num_envs = num_envs
+        self.spec = spec
+
+        n = self.games[0].action_space.n
+        self.routines = _validate_routines(routines, n) if routines is not None else ()
+        self.has_routines = routines is not None and len(self.routines) > 0
+        self.num_primitive_actions = n
+        self.max_routine_length = max((len(r) for r in self.routines), default=1)
+        self.record_observations = bool(record_observations) and self.has_routines
+        sequences = tuple((a,) for a in range(n)) + self.routines
+        # Each action's primitives, as MinAtar's own action numbers.
+        action_set = self.games[0].action_set
+        self._sequences = tuple(tuple(action_set[a] for a in s) for s in sequences)
+        self._padded_actions = np.full((len(sequences), self.max_routine_length), PAD_ACTION,
+                                       dtype=np.int64)
+        for a, sequence in enumerate(sequences):
+            self._padded_actions[a, : len(sequence)] = sequence
+
+        h, w, c = self.games[0].observation_space.shape
+        self._state_shape = (h, w, c)
+        self.single_observation_space = spaces.Box(0.0, 1.0, shape=(c, h, w), dtype=np.float32)
+        self.single_action_space = spaces.Discrete(n + len(self.routines))
+        self.observation_space = gym.vector.utils.batch_space(self.single_observation_space,
+                                                              num_envs)
+        self.action_space = gym.vector.utils.batch_space(self.single_action_space, num_envs)
+        self.metadata = {**self.metadata, "render_modes": []}
+        self.render_mode = None
+        self.closed = False
+
+        self._elapsed = np.zeros(num_envs, dtype=np.int64)
+        self._returns = [0.0] * num_envs
+        self._lengths = [0] * num_envs
+        self._start_times = [0.0] * num_envs
+
+    def get_action_meanings(self) -> list[str]:
+        """The names of the primitive actions, then one per routine, as the routine wrapper."""
+        from routine_gym.library import routine_name
+
+        meanings = self.games[0].get_action_meanings()
+        return meanings + [f"R{k}:{routine_name(r, meanings)}"
+                           for k, r in enumerate(self.routines)]
+
+    def _view(self, states: np.ndarray) -> np.ndarray:
+        """(..., H, W, C) booleans to (..., C, H, W) float32, the agent's view."""
+        return np.ascontiguousarray(np.moveaxis(states, -1, -3), dtype=np.float32)
+
+    def reset(self, *, seed: int | Sequence[int | None] | None = None,
+              options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        if seed is None or isinstance(seed, int | np.integer):
+            seeds = [None if seed is None else int(seed) + i for i in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"reset needs {self.num_envs} seeds, got {len(seeds)}")
+        states = np.empty((self.num_envs, *self._state_shape), dtype=bool)
+        for i, game in enumerate(self.games):
+            states[i], _ = game.reset(seed=seeds[i])
+            self._start_episode(i)
+        return self._view(states), {}
+
+    def _start_episode(self, i: int) -> None:
+        self._elapsed[i] = 0
+        self._returns[i] = 0.0
+        self._lengths[i] = 0
+        self._start_times[i] = time.perf_counter()
+
+    def step(self, actions: np.ndarray):
+        e, length = self.num_envs, self.max_routine_length
+        actions = np.asarray(actions)
+        if actions.shape != (e,):
+            raise ValueError(f"step needs {e} actions, got an array of shape {actions.shape}")
+        outside = (actions < 0) | (actions >= len(self._sequences))
+        if outside.any():
+            raise ValueError(f"action {actions[outside][0]} is outside the action space "
+                             f"{self.single_action_space}")
+        states = np.empty((e, *self._state_shape), dtype=bool)
+        final_states = np.empty((e, *self._state_shape), dtype=bool)
+        rewards = np.zeros(e, dtype=np.float64)
+        terminated = np.zeros(e, dtype=bool)
+        truncated = np.zeros(e, dtype=bool)
+        if self.has_routines:
+            step_lengths = np.zeros(e, dtype=np.int64)
+            step_rewards = np.zeros((e, length), dtype=np.float64)
+            step_terminated = np.zeros((e, length), dtype=bool)
+            step_truncated = np.zeros((e, length), dtype=bool)
+            step_actions = self._padded_actions[actions]  # a copy: fancy indexing
+            if self.record_observations:
+                inner_states = np.zeros((e, length, *self._state_shape), dtype=bool)
+        episodes: list[tuple[int, float, int, float]] = []
+        sequences, games, limit = self._sequences, self.games, self.max_episode_steps
+        elapsed, returns, lengths = self._elapsed, self._returns, self._lengths
+
+        for i in range(e):
+            a = int(actions[i])
+            game = games[i].game
+            total, executed, term, trunc = 0.0, 0, False, False
+            for primitive in sequences[a]:
+                reward, term = game.act(primitive)
+                reward = float(reward)
+                term = bool(term)
+                elapsed[i] += 1
+                trunc = limit is not None and elapsed[i] >= limit
+                total += reward
+                if self.has_routines:
+                    step_rewards[i, executed] = reward
+                    if self.record_observations:
+                        inner_states[i, executed] = game.state()
+                executed += 1
+                if term or trunc:
+                    break
+            returns[i] += total
+            lengths[i] += executed
+            rewards[i], terminated[i], truncated[i] = total, term, trunc
+            if self.has_routines:
+                step_lengths[i] = executed
+                step_actions[i, executed:] = PAD_ACTION
+                step_terminated[i, executed - 1] = term
+                step_truncated[i, executed - 1] = trunc
+            if term or trunc:
+                final_states[i] = (inner_states[i, executed - 1] if self.record_observations
+                                   else game.state())
+                episodes.append((i, returns[i], lengths[i],
+                                 round(time.perf_counter() - self._start_times[i], 6)))
+                states[i], _ = games[i].reset()
+                self._start_episode(i)
+            else:
+                states[i] = (inner_states[i, executed - 1] if self.record_observations
+                             else game.state())
+
+        done = terminated | truncated
+        info: dict[str, Any] = {}
+        if self.has_routines:
+            routine = {"routine_index": np.where(actions >= self.num_primitive_actions,
+                                                 actions - self.num_primitive_actions, -1),
+                       "routine_length": step_lengths, "routine_actions": step_actions,
+                       "routine_rewards": step_rewards, "routine_terminated": step_terminated,
+                       "routine_truncated": step_truncated}
+            if self.record_observations:
+                routine["routine_observations"] = self._view(inner_states)
+            # The envs whose episode ended report their step in final_info (the top level is
+            # their reset's, which has no routine keys), as SyncVectorEnv arranges it.
+            if not done.all():
+                info.update(_masked(routine, ~done))
+        if episodes:
+            final_info: dict[str, Any] = {}
+            if self.has_routines:
+                final_info.update(_masked(routine, done))
+            ended = np.array([i for i, *_ in episodes])
+            episode = {"r": np.zeros(e, dtype=np.float64), "l": np.zeros(e, dtype=np.int64),
+                       "t": np.zeros(e, dtype=np.float64)}
+            for i, ret, steps, seconds in episodes:
+                episode["r"][i], episode["l"][i], episode["t"][i] = ret, steps, seconds
+            mask = np.zeros(e, dtype=bool)
+            mask[ended] = True
+            for key in ("r", "l", "t"):
+                episode[f"_{key}"] = mask.copy()
+            final_info["episode"], final_info["_episode"] = episode, mask.copy()
+            final_obs = np.full(e, None, dtype=object)
+            views = self._view(final_states[ended])
+            for j, i in enumerate(ended):
+                final_obs[i] = views[j]
+            info["final_obs"], info["_final_obs"] = final_obs, mask.copy()
+            info["final_info"], info["_final_info"] = final_info, mask.copy()
+        return self._view(states), rewards, terminated, truncated, info
+
+    def close_extras(self, **kwargs: Any) -> None:
+        for game in self.games:
+            game.close()
+
+
+def _masked(arrays: dict[str, np.ndarray], mask: np.ndarray) -> dict[str, np.ndarray]:
+    """Each array with the rows outside `mask` zeroed, and its `_key` mask (SyncVectorEnv's
+    layout for keys some envs did not report)."""
+    out: dict[str, np.ndarray] = {}
+    for key, value in arrays.items():
+        if mask.all():
+            out[key] = value
+        else:
+            masked = np.zeros_like(value)
+            masked[mask] = value[mask]
+            out[key] = masked
+        out[f"_{key}"] = mask.copy()
+    return out
