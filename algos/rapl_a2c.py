@@ -214,6 +214,13 @@ class Agent(nn.Module):
             action = dist.sample()
         return action, dist.log_prob(action), dist.entropy(), self.critic(hidden).squeeze(-1)
 
+    def evaluate(self, obs: torch.Tensor, action: torch.Tensor):
+        """One pass over a rollout: log-probabilities and entropies of the `len(action)` first
+        states' actions, and the values of all `len(obs)` states (the rest: bootstraps)."""
+        hidden = self.encoder(obs)
+        dist = Categorical(logits=self.actor(hidden[: len(action)]))
+        return dist.log_prob(action), dist.entropy(), self.critic(hidden).squeeze(-1)
+
 
 #: What a checkpoint of this script holds (`--resume` checks for each).
 CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "decisions", "rng", "args",
@@ -315,7 +322,8 @@ def main(args: Args) -> None:
     final_values = np.zeros((n, e), dtype=np.float64)
     inner_obs = np.zeros((n, max(max_len - 1, 1), e, *obs_shape), dtype=obs_dtype)
     first_n = args.mode == "rapl" and args.prim_states == "first-n"
-    decision_obs = np.zeros((n if first_n else 1, e, *obs_shape), dtype=obs_dtype)
+    rollout_obs = np.zeros((n + 1, e, *obs_shape), dtype=obs_dtype)  # + the state after it
+    decision_obs = rollout_obs[:n]
 
     # What a checkpoint holds; a resumed run starts where its checkpoint left off.
     # --budget-unit decisions: the budget, the schedule and --checkpoint-every count decisions.
@@ -340,20 +348,14 @@ def main(args: Args) -> None:
             frac = max(1.0 - spent / args.total_timesteps, 0.0)
             optimizer.param_groups[0]["lr"] = frac * args.learning_rate
 
-        # The policy does not change during a rollout, so the acting forward pass keeps its
-        # graph and the update reuses it instead of running the network over the rollout again.
-        logprobs, entropies, values = [], [], []
+        # Acting needs no graph: the update runs the network once over the whole rollout.
         for step in range(n):
-            action_t, logprob_t, entropy_t, value_t = agent.get_action_and_value(
-                torch.as_tensor(next_obs, device=device)
-            )
-            logprobs.append(logprob_t)
-            entropies.append(entropy_t)
-            values.append(value_t)
+            with torch.no_grad():
+                action_t, _, _, _ = agent.get_action_and_value(
+                    torch.as_tensor(next_obs, device=device))
             action = action_t.cpu().numpy()
             actions[step] = action
-            if first_n:
-                decision_obs[step] = next_obs
+            decision_obs[step] = next_obs
             next_obs, reward, term, trunc, info = envs.step(action)
             done = term | trunc
             terminated[step], truncated[step] = term, trunc
@@ -396,16 +398,22 @@ def main(args: Args) -> None:
                                                        args.gamma)
         else:
             rewards, discounts = macro_reward_and_discount(step_rewards, lengths, args.gamma)
-        with torch.no_grad():
-            bootstrap = agent.get_value(torch.as_tensor(next_obs, device=device)).cpu().numpy()
+        # One forward pass over the rollout's n·e decision states and the e states after it,
+        # whose values (detached) bootstrap the returns. Batched, each output is the acting
+        # pass's bit for bit (tests/test_rapl_a2c_update.py).
+        rollout_obs[n] = next_obs
+        logprobs, entropies, all_values = agent.evaluate(
+            torch.as_tensor(rollout_obs.reshape(-1, *obs_shape), device=device),
+            torch.as_tensor(actions.reshape(-1), device=device))
+        values = all_values[: n * e]
+        bootstrap = all_values[n * e:].detach().cpu().numpy()
         returns = decision_returns(rewards, discounts, terminated, truncated, final_values,
                                    bootstrap)
-
         b_returns = torch.as_tensor(returns, dtype=torch.float32, device=device)
-        advantages = b_returns - torch.stack(values)  # A_routine, [n, e]
-        pg_loss = -(torch.stack(logprobs) * advantages.detach()).mean()
+        advantages = b_returns - values.view(n, e)  # A_routine, [n, e]
+        pg_loss = -(logprobs.view(n, e) * advantages.detach()).mean()
         v_loss = advantages.pow(2).mean()
-        entropy_loss = torch.stack(entropies).mean()
+        entropy_loss = entropies.view(n, e).mean()
 
         prim_loss = torch.zeros((), device=device)
         if first_n:

@@ -194,18 +194,18 @@ def test_every_mode_runs_on_coinrun_with_procgen_options(
     rapl_a2c, tmp_path, coinrun_demo, mode, monkeypatch
 ):
     made = []
-    real_make_env = rapl_a2c.make_env
+    real_make_vector_env = rapl_a2c.make_vector_env
 
-    def spy_make_env(env_id, *args, **kwargs):
+    def spy_make_vector_env(env_id, *args, **kwargs):
         made.append(kwargs["env_kwargs"])
-        return real_make_env(env_id, *args, **kwargs)
+        return real_make_vector_env(env_id, *args, **kwargs)
 
-    monkeypatch.setattr(rapl_a2c, "make_env", spy_make_env)
+    monkeypatch.setattr(rapl_a2c, "make_vector_env", spy_make_vector_env)
     demo = None if mode == "a2c" else coinrun_demo
     folder = run(rapl_a2c, tmp_path, env_id="procgen/CoinRun-v0", mode=mode, demo=demo,
                  num_levels=7, start_level=3, distribution_mode="easy", total_timesteps=60)
     check_run_folder(folder, mode, eval_episodes=0)
-    assert made == [{"num_levels": 7, "start_level": 3, "distribution_mode": "easy"}] * 2
+    assert made == [{"num_levels": 7, "start_level": 3, "distribution_mode": "easy"}]
 
 
 @pytest.mark.slow

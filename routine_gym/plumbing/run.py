@@ -373,9 +373,9 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
         experiment = args.exp_name if mode is None else f"{args.exp_name}-{mode}"
         name, path = _new_run_folder(
             args.run_dir, f"{args.env_id.replace('/', '-')}__{experiment}__{args.seed}")
-    from torch.utils.tensorboard import SummaryWriter
+    from routine_gym.plumbing.scalars import ScalarWriter
 
-    writer = SummaryWriter(path)
+    writer = ScalarWriter(path)  # a SummaryWriter writing each step's scalars as one event
     writer.add_text(
         "hyperparameters",
         "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in vars(args).items()),

@@ -1,0 +1,73 @@
+"""`ScalarWriter`: TensorBoard's `SummaryWriter`, one event per step for the scalars of a step.
+
+A training script logs a dozen scalars after every update, all at the same `global_step`
+(losses, learning rate, SPS, the counters). `SummaryWriter.add_scalar` makes one event per
+scalar: a protobuf `Summary`, an `Event`, a queue put and a record write each, about 40 µs. On
+MinAtar, where an update is 80 agent steps of a small network, that was a tenth of the time. This
+writer keeps the scalars of the current step and writes them as one event (one `Summary` with
+several values) when the step changes, on `flush()` and on `close()`: about 4 µs per scalar.
+TensorBoard (and `EventAccumulator`, `tbparse`, ...) reads back the same tags, steps and float32
+values; only the events' wall times are shared by the scalars of one step.
+
+Example:
+    >>> import tempfile
+    >>> from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    >>> folder = tempfile.mkdtemp()
+    >>> writer = ScalarWriter(folder)
+    >>> for step in (10, 20):
+    ...     writer.add_scalar("losses/a", step / 4, step)
+    ...     writer.add_scalar("losses/b", -step, step)
+    >>> writer.close()
+    >>> events = EventAccumulator(folder); _ = events.Reload()
+    >>> [(e.step, e.value) for e in events.Scalars("losses/a")]
+    [(10, 2.5), (20, 5.0)]
+    >>> [(e.step, e.value) for e in events.Scalars("losses/b")]
+    [(10, -10.0), (20, -20.0)]
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from tensorboard.compat.proto.summary_pb2 import Summary
+from torch.utils.tensorboard import SummaryWriter
+
+__all__ = ["ScalarWriter"]
+
+
+class ScalarWriter(SummaryWriter):
+    """A `SummaryWriter` whose `add_scalar` groups the scalars of one step into one event."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._step: int | None = None
+        self._values: list[Summary.Value] = []
+
+    def add_scalar(self, tag: str, scalar_value: Any, global_step: int | None = None,
+                   walltime: float | None = None, new_style: bool = False,
+                   double_precision: bool = False) -> None:
+        if global_step is None or walltime is not None or new_style or double_precision:
+            self._write_pending()
+            super().add_scalar(tag, scalar_value, global_step, walltime, new_style,
+                               double_precision)
+            return
+        if global_step != self._step:
+            self._write_pending()
+            self._step = global_step
+        # `SummaryWriter.add_scalar` stores float(value) as the proto's float32 simple_value.
+        self._values.append(Summary.Value(tag=tag, simple_value=float(scalar_value)))
+
+    def _write_pending(self) -> None:
+        if self._values:
+            self._get_file_writer().add_summary(Summary(value=self._values), self._step,
+                                                time.time())
+            self._values = []
+
+    def flush(self) -> None:
+        self._write_pending()
+        super().flush()
+
+    def close(self) -> None:
+        self._write_pending()
+        super().close()
