@@ -1,0 +1,113 @@
+"""CompILE's masked GRU as one autograd function: the recurrence written out, forward and back.
+
+The recognition model runs a GRU over each window once per segment (`CompILE.recognise`), its
+state multiplied after each step by a soft mask that restarts it at the previous boundary:
+
+    r_t = σ(gi_r,t + W_hr h_{t−1} + b_hr)     z_t = σ(gi_z,t + W_hz h_{t−1} + b_hz)
+    n_t = tanh(gi_n,t + r_t ⊙ (W_hn h_{t−1} + b_hn))
+    h_t = ((1 − z_t) ⊙ n_t + z_t ⊙ h_{t−1}) ⊙ m_t,        h_{−1} = 0,
+
+where `gi_t = W_ih x_t + b_ih` (`torch.nn.GRUCell`'s gates and weight layout, r, z, n). With
+`GRUCell` in a Python loop, autograd recorded a dozen small operations per step and replayed them
+backward: 10 segments × 33 steps per batch made the fit take minutes on a CPU. Here:
+
+- the input projection `gi` is one matrix product for the whole window, shared by every segment
+  (the caller computes it, so its gradient flows through autograd as usual);
+- the loop runs without recording, and `backward` walks it in reverse with the hand-derived
+  gradients; the gradient of `W_hh` is one matrix product over all steps at the end.
+
+It is the same function of the same parameters as the `GRUCell` loop; `tests/test_compile.py`
+checks the outputs and every gradient against that loop (float64, to 1e-10) and with
+`torch.autograd.gradcheck`.
+"""
+
+from __future__ import annotations
+
+import torch
+
+__all__ = ["masked_gru"]
+
+
+class _MaskedGRU(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, gi: torch.Tensor, mask: torch.Tensor, weight_hh: torch.Tensor,
+                bias_hh: torch.Tensor) -> torch.Tensor:
+        b, steps, three_h = gi.shape
+        h = three_h // 3
+        gi_t = gi.transpose(0, 1)  # [T, B, 3H]: each step's gates contiguous in memory
+        mask_t = mask.t().unsqueeze(-1)  # [T, B, 1]
+        outputs = gi.new_empty(steps + 1, b, h)  # h_{−1} = 0, then h_0 … h_{T−1}
+        outputs[0] = 0
+        rz = gi.new_empty(steps, b, 2 * h)  # σ of the r and z gates
+        n = gi.new_empty(steps, b, h)
+        gh_n = gi.new_empty(steps, b, h)  # W_hn h_{t−1} + b_hn
+        weight_t = weight_hh.t()
+        for t in range(steps):
+            hidden = outputs[t]
+            gh = torch.addmm(bias_hh, hidden, weight_t)
+            torch.sigmoid(gi_t[t, :, :2 * h] + gh[:, :2 * h], out=rz[t])
+            gh_n[t] = gh[:, 2 * h:]
+            torch.tanh(torch.addcmul(gi_t[t, :, 2 * h:], rz[t, :, :h], gh_n[t]), out=n[t])
+            # h_t = ((1 − z) n + z h_{t−1}) m_t = (n + z (h_{t−1} − n)) m_t
+            torch.mul(torch.addcmul(n[t], rz[t, :, h:], hidden - n[t]), mask_t[t],
+                      out=outputs[t + 1])
+        ctx.save_for_backward(mask_t, weight_hh, outputs, rz, n, gh_n)
+        return outputs[1:].transpose(0, 1)
+
+    @staticmethod
+    def backward(ctx, grad_outputs: torch.Tensor):
+        mask_t, weight_hh, outputs, rz, n, gh_n = ctx.saved_tensors
+        steps, b, h = n.shape
+        previous = outputs[:-1]  # h_{t−1}
+        r, z = rz[..., :h], rz[..., h:]
+        # What does not depend on the gradient coming back, for all steps at once.
+        unmasked = torch.addcmul(n, z, previous - n)
+        to_n = (1 - z) * (1 - n * n)  # ∂h_t/∂(n's pre-activation), before the mask
+        to_z = (previous - n) * z * (1 - z)  # ∂h_t/∂(z's pre-activation)
+        to_r = gh_n * r * (1 - r)  # ∂(n's pre-activation)/∂(r's pre-activation)
+        grad_outputs = grad_outputs.transpose(0, 1)
+        grad_h = grad_outputs.new_empty(steps, b, h)  # ∂L/∂h_t, all paths
+        grad_gh = grad_outputs.new_empty(steps, b, 3 * h)  # ∂L/∂(W_hh h_{t−1} + b_hh)
+        grad_pre_n = grad_outputs.new_empty(steps, b, h)
+        carried = grad_outputs.new_zeros(b, h)  # ∂L/∂h_t from the steps after t
+        for t in reversed(range(steps)):
+            torch.add(grad_outputs[t], carried, out=grad_h[t])
+            grad_unmasked = grad_h[t] * mask_t[t]
+            torch.mul(grad_unmasked, to_n[t], out=grad_pre_n[t])
+            torch.mul(grad_pre_n[t], to_r[t], out=grad_gh[t, :, :h])
+            torch.mul(grad_unmasked, to_z[t], out=grad_gh[t, :, h:2 * h])
+            torch.mul(grad_pre_n[t], r[t], out=grad_gh[t, :, 2 * h:])
+            carried = torch.addmm(grad_unmasked * z[t], grad_gh[t], weight_hh)
+        grad_mask = (grad_h * unmasked).sum(dim=-1).t()
+        grad_gi = torch.cat([grad_gh[..., :2 * h], grad_pre_n], dim=-1).transpose(0, 1)
+        grad_weight = grad_gh.reshape(-1, 3 * h).t() @ previous.reshape(-1, h)
+        grad_bias = grad_gh.sum(dim=(0, 1))
+        return grad_gi, grad_mask, grad_weight, grad_bias
+
+
+def masked_gru(gi: torch.Tensor, mask: torch.Tensor, weight_hh: torch.Tensor,
+               bias_hh: torch.Tensor) -> torch.Tensor:
+    """The masked GRU of the module docstring over `[B, T, 3H]` input gates.
+
+    Args:
+        gi: `W_ih x_t + b_ih` for every step, `[B, T, 3H]` (gates r, z, n, as `GRUCell`).
+        mask: `[B, T]` the factor of the state after each step.
+        weight_hh, bias_hh: `GRUCell`'s `weight_hh` `[3H, H]` and `bias_hh` `[3H]`.
+
+    Returns:
+        `[B, T, H]` the masked state after each step.
+
+    Example:
+        >>> import torch
+        >>> cell = torch.nn.GRUCell(3, 2)
+        >>> x, mask = torch.randn(4, 5, 3), torch.rand(4, 5)
+        >>> gi = torch.nn.functional.linear(x, cell.weight_ih, cell.bias_ih)
+        >>> out = masked_gru(gi, mask, cell.weight_hh, cell.bias_hh)
+        >>> hidden, loop = torch.zeros(4, 2), []
+        >>> for t in range(5):
+        ...     hidden = cell(x[:, t], hidden) * mask[:, t, None]
+        ...     loop.append(hidden)
+        >>> torch.allclose(out, torch.stack(loop, dim=1), atol=1e-6)
+        True
+    """
+    return _MaskedGRU.apply(gi, mask, weight_hh, bias_hh)
