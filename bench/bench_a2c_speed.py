@@ -1,37 +1,69 @@
-"""Benchmark: agent steps per second of `algos/rapl_a2c.py` against Stable-Baselines3's A2C.
+"""Benchmark: agent steps per second of `algos/rapl_a2c.py` against Stable-Baselines3's A2C and
+against the network alone.
 
 SPEC §7: on `ALE/Qbert-v5` with 16 envs on this CPU, `rapl_a2c.py` should make at least 1.5×
 the agent steps per second of SB3's A2C measured in the same run, with the routines on
-(`--mode rapl`) as fast as plain A2C (`--mode a2c`).
+(`--mode rapl`) as fast as plain A2C (`--mode a2c`). On MinAtar (`--env-id MinAtar/...`, 16
+envs) the script should run at the network's speed: `--mode a2c` at ≥ 20,000 agent steps/s
+and ≥ 0.8× the network-only bound (below) measured in the same run, `--mode rapl` at least as
+fast; SB3's ratio is reported as measured, with no target.
 
 Configurations, each run as its own subprocess so that nothing (threads, caches, ALE state) is
 shared between them:
 
+- ``net-t1`` / ``net-t2``: the network-only bound, this file's `--worker net` with 1 or 2
+  torch threads: the `Agent` of `rapl_a2c.py` (imported from the file) for the env's agent
+  observation space and primitive action count (`--mode a2c`), trained with exactly the
+  script's per-rollout network work and defaults (its `Args`): `--num-steps` acting passes
+  `get_action_and_value` on batches of `--num-envs` observations without a graph, each
+  sampled action brought back with `.cpu().numpy()`, one `Agent.evaluate` pass over the
+  rollout's decision states and the bootstrap states, the losses (policy, value ×
+  `vf_coef`, entropy × `ent_coef`) against random returns, the loss values read with
+  `.item()`, `zero_grad`, `backward`, `clip_grad_norm_`,
+  and an RMSprop(`foreach=True`) step, with the learning rate annealed per rollout as the
+  script does. The inputs are random (0/1 floats for float spaces such as MinAtar's, uint8
+  for Atari frames): a few batches generated before timing and reused cyclically. No env is
+  stepped, so no script can be faster with this network and these threads.
 - ``a2c-t1`` … ``rapl-async-t2``: `python algos/rapl_a2c.py --mode {a2c,rapl} --num-envs 16
   --eval-episodes 0 --torch-threads {1,2} [--async-envs]` (the script's default is
   `--torch-threads 0`, torch's own count: 2 on a 2-core machine). RAPL mines its routines
   from `--demo`: `demos/ALE-Qbert-v5.npz` when it exists, else a one-episode random-policy Qbert
   demo (at most 2,000 steps) recorded into a temporary folder first.
-- ``sb3-default`` / ``sb3-t1``: the RL Zoo's Atari A2C: `make_atari_env("QbertNoFrameskip-v4",
-  n_envs=16)`, `VecFrameStack(n_stack=4)`, `A2C("CnnPolicy", n_steps=5, ent_coef=0.01,
-  vf_coef=0.25)` with `RMSpropTFLike(eps=1e-5)`, once with torch's default thread count and
-  once with 1 thread; its 16 envs are stepped in one process (`DummyVecEnv`).
+- ``sb3-default`` / ``sb3-t1``: SB3's A2C, once with torch's default thread count and once with
+  1 thread; its 16 envs are stepped in one process (`DummyVecEnv`). On Atari, the RL Zoo's
+  Atari A2C: `make_atari_env("QbertNoFrameskip-v4", n_envs=16)`, `VecFrameStack(n_stack=4)`,
+  `A2C("CnnPolicy", n_steps=5, ent_coef=0.01, vf_coef=0.25)` with `RMSpropTFLike(eps=1e-5)`.
+  On MinAtar, the same env stack and network as ours: a `DummyVecEnv` of 16
+  `routine_gym.envs.factory.make_env` envs (the MinAtar game, `RecordEpisodeStatistics`, the
+  channels-first float32 (C, 10, 10) view), `A2C("CnnPolicy", n_steps=5, ent_coef=0.01,
+  vf_coef=0.5, learning_rate=7e-4)` with `MinAtarExtractor` (MinAtar's network, as
+  `routine_gym.networks.make_torso` builds it), `net_arch=[]` (linear actor and critic heads
+  on its 128 features) and `normalize_images=False`, and SB3's default RMSprop(alpha=0.99,
+  eps=1e-5), the same as ours.
 
-Agent steps are primitive agent steps (4 frames each, in both libraries): a routine of length
-ℓ counts ℓ. Each configuration runs `--warmup` steps, then `--steps` measured steps; the time is
-taken in this process around the measured steps, from the arrival of the script's progress line
-at the first step ≥ warm-up to that of its last line (`--log-every 1000`), and for SB3 by a
-callback at the same points (both brackets hold the same number of whole updates). Env
-creation, routine mining, the first `reset` and the final `close` are outside it. The script's
-own cumulative `SPS` (which includes the warm-up) is reported beside it, and so is the CPU time
+Agent steps are primitive agent steps (on Atari 4 frames each, in both libraries): a routine
+of length ℓ counts ℓ. Each configuration runs `--warmup` steps, then `--steps` measured steps;
+the time is taken in this process around the measured steps, from the arrival of the script's
+progress line at the first step ≥ warm-up to that of its last line (`--log-every 1000`), for
+SB3 by a callback at the same points (both brackets hold the same number of whole updates),
+and for the network-only bound inside the worker around whole rollouts (`--num-envs` ×
+`--num-steps` agent steps each): the warm-up rollouts cover `--warmup` steps, the timed ones
+`--steps` (both rounded up to whole rollouts). Env creation, routine mining, the first
+`reset`, the network's construction and the final `close` are outside it. The script's own
+cumulative `SPS` (which includes the warm-up) is reported beside it, and so is the CPU time
 used over the same steps (/proc for the script and its env workers, `time.process_time()` for
-SB3), which a shared machine disturbs less than wall time. The load averages are taken before
-each configuration; each summary figure is the best repeat of its configuration.
+SB3 and the network worker), which a shared machine disturbs less than wall time. The load
+averages are taken before each configuration; each summary figure is the best repeat of its
+configuration, and each of our configurations is also given as a fraction of the
+network-only bound with the same number of torch threads.
 
 Usage:
     python bench/bench_a2c_speed.py
     python bench/bench_a2c_speed.py --warmup 2000 --steps 20000 --repeats 2
     python bench/bench_a2c_speed.py --configs a2c-t1 rapl-t1 sb3-default --demo my_demo.npz
+    python bench/bench_a2c_speed.py --env-id MinAtar/Breakout-v1 \\
+        --demo demos/MinAtar-Breakout-v1.npz --configs net-t1 a2c-t1 rapl-t1 sb3-t1 \\
+        --out bench/results/a2c_speed_minatar.md
 """
 
 from __future__ import annotations
@@ -56,10 +88,17 @@ REPO = Path(__file__).resolve().parents[1]
 SCRIPT = REPO / "algos" / "rapl_a2c.py"
 #: The SPEC §7 target: ours / SB3 in agent steps per second.
 TARGET_RATIO = 1.5
+#: MinAtar's acceptance: `--mode a2c` at least this many agent steps per second ...
+MINATAR_MIN_SPS = 20_000
+#: ... and at least this fraction of the network-only bound with the same torch threads.
+MINATAR_BOUND_RATIO = 0.8
+#: Random input batches the network worker cycles through (generated before timing).
+NET_BATCHES = 8
 
 
 class Config(NamedTuple):
-    """Whose A2C, which mode, torch threads (0: torch's default), envs in subprocesses or not."""
+    """Whose A2C (ours, sb3) or the network alone (net), which mode, torch threads (0: torch's
+    default), envs in subprocesses or not."""
 
     kind: str
     mode: str | None
@@ -68,6 +107,8 @@ class Config(NamedTuple):
 
 
 CONFIGS: dict[str, Config] = {
+    "net-t1": Config("net", None, 1),
+    "net-t2": Config("net", None, 2),
     "a2c-t1": Config("ours", "a2c", 1),
     "a2c-t2": Config("ours", "a2c", 2),
     "rapl-t1": Config("ours", "rapl", 1),
@@ -284,12 +325,20 @@ def run_ours(name: str, config: Config, args, demo: str, run_dir: Path, repeat: 
     return result
 
 
-def run_sb3(name: str, threads: int, args, repeat: int) -> Result:
-    """Run SB3's A2C in a subprocess (this file's `--worker sb3`) and read its JSON line."""
-    cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", "sb3",
-           "--sb3-env-id", args.sb3_env_id, "--num-envs", str(args.num_envs),
-           "--warmup", str(args.warmup), "--steps", str(args.steps),
-           "--worker-threads", str(threads)]
+#: What a worker's JSON line holds besides the description kept in `Result.extra`.
+_TIMING_KEYS = ("start_step", "end_step", "seconds", "cpu_seconds", "torch_threads")
+
+
+def run_worker(name: str, config: Config, args, repeat: int) -> Result:
+    """Run this file's `--worker sb3` (SB3's A2C) or `--worker net` (the network alone) in a
+    subprocess and read its JSON line."""
+    threads = config.threads
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", config.kind,
+           "--env-id", args.env_id]
+    if config.kind == "sb3" and not is_minatar(args.env_id):  # MinAtar: SB3 runs --env-id
+        cmd += ["--sb3-env-id", args.sb3_env_id]
+    cmd += ["--num-envs", str(args.num_envs), "--warmup", str(args.warmup),
+            "--steps", str(args.steps), "--worker-threads", str(threads)]
     result = Result(name, repeat, shlex.join(cmd), "default" if threads == 0 else str(threads),
                     load_average())
     proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
@@ -303,29 +352,41 @@ def run_sb3(name: str, threads: int, args, repeat: int) -> Result:
     result.seconds = data["seconds"]
     result.sps = (result.end_step - result.start_step) / result.seconds
     result.cpu_seconds = data["cpu_seconds"]
-    result.cpu_sps = (result.end_step - result.start_step) / result.cpu_seconds
+    if result.cpu_seconds:
+        result.cpu_sps = (result.end_step - result.start_step) / result.cpu_seconds
     result.torch_threads = f"{data['torch_threads']}" + (" (default)" if threads == 0 else "")
-    result.extra = {k: data[k] for k in ("env_id", "optimizer", "interop_threads")}
+    result.extra = {k: v for k, v in data.items() if k not in _TIMING_KEYS}
     return result
 
 
-def sb3_worker(args) -> None:
-    """SB3 A2C as the RL Zoo runs it on Atari; prints one JSON line with the timed bracket."""
-    import ale_py
-    import gymnasium as gym
-    import torch
-    from stable_baselines3 import A2C
-    from stable_baselines3.common.callbacks import BaseCallback
-    from stable_baselines3.common.env_util import make_atari_env
-    from stable_baselines3.common.sb2_compat.rmsprop_tf_like import RMSpropTFLike
-    from stable_baselines3.common.vec_env import VecFrameStack
+def minatar_extractor_class():
+    """`MinAtarExtractor`: MinAtar's network as an SB3 features extractor (SB3 imported late,
+    so that the parent process never loads it)."""
+    import torch.nn as nn
+    from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
-    gym.register_envs(ale_py)
-    if args.worker_threads > 0:
-        torch.set_num_threads(args.worker_threads)
-    env = VecFrameStack(make_atari_env(args.sb3_env_id, n_envs=args.num_envs, seed=1),
-                        n_stack=4)
-    end_at = args.warmup + args.steps
+    class MinAtarExtractor(BaseFeaturesExtractor):
+        """Conv2d(C, 16, 3, stride 1), ReLU, Flatten, Linear(16·(H−2)·(W−2), 128), ReLU: the
+        torso `routine_gym.networks.make_torso` builds for MinAtar (SB3 initialises it
+        orthogonally with gain √2, as `layer_init` does)."""
+
+        def __init__(self, observation_space, features_dim: int = 128) -> None:
+            super().__init__(observation_space, features_dim)
+            c, h, w = observation_space.shape
+            self.torso = nn.Sequential(
+                nn.Conv2d(c, 16, 3, stride=1), nn.ReLU(), nn.Flatten(),
+                nn.Linear(16 * (h - 2) * (w - 2), features_dim), nn.ReLU(),
+            )
+
+        def forward(self, observations):
+            return self.torso(observations)
+
+    return MinAtarExtractor
+
+
+def sb3_timer(warmup: int, end_at: int):
+    """SB3's callback that takes the time stamps."""
+    from stable_baselines3.common.callbacks import BaseCallback
 
     class Timer(BaseCallback):
         """Time stamps at the first step ≥ warm-up and at the end; stops training there."""
@@ -337,28 +398,206 @@ def sb3_worker(args) -> None:
 
         def _on_step(self) -> bool:
             now, cpu = time.perf_counter(), time.process_time()
-            if self.start is None and self.num_timesteps >= args.warmup:
+            if self.start is None and self.num_timesteps >= warmup:
                 self.start = (now, self.num_timesteps, cpu)
             if self.num_timesteps >= end_at:
                 self.end = (now, self.num_timesteps, cpu)
                 return False
             return True
 
-    # The RL Zoo's hyperparameters for A2C on Atari (hyperparams/a2c.yml, `atari:`).
-    model = A2C("CnnPolicy", env, n_steps=5, ent_coef=0.01, vf_coef=0.25, device="cpu",
-                policy_kwargs={"optimizer_class": RMSpropTFLike,
-                               "optimizer_kwargs": {"eps": 1e-5}},
-                seed=1, verbose=0)
-    timer = Timer()
+    return Timer()
+
+
+def sb3_worker(args) -> None:
+    """SB3 A2C, as the RL Zoo runs it on Atari, or on MinAtar with our env stack and network;
+    prints one JSON line with the timed bracket."""
+    import torch
+    from stable_baselines3 import A2C
+
+    if args.worker_threads > 0:
+        torch.set_num_threads(args.worker_threads)
+    end_at = args.warmup + args.steps
+    minatar = args.env_id.startswith("MinAtar/")
+    if minatar:
+        from stable_baselines3.common.vec_env import DummyVecEnv
+
+        import routine_gym
+        from routine_gym.envs.factory import make_env
+        from routine_gym.networks import make_torso
+
+        routine_gym.register_envs()
+        env_id = args.env_id
+        env = DummyVecEnv([make_env(env_id, seed=1, idx=i, training=True)
+                           for i in range(args.num_envs)])
+        extractor = minatar_extractor_class()
+        model = A2C("CnnPolicy", env, n_steps=5, ent_coef=0.01, vf_coef=0.5,
+                    learning_rate=7e-4, device="cpu", seed=1, verbose=0,
+                    policy_kwargs={"features_extractor_class": extractor,
+                                   "features_extractor_kwargs": {"features_dim": 128},
+                                   "net_arch": [], "normalize_images": False})
+        # The same network as ours: the extractor's parameters have our torso's shapes.
+        ours, _ = make_torso(env_id, env.observation_space.shape)
+        theirs = model.policy.features_extractor
+        assert [p.shape for p in theirs.parameters()] == [p.shape for p in ours.parameters()]
+        optimizer = "RMSprop(alpha=0.99, eps=1e-5) (SB3's A2C default)"
+        setup = (f"SB3 on MinAtar: `DummyVecEnv` of {args.num_envs} "
+                 "`routine_gym.envs.factory.make_env(env_id, seed=1, idx=i, training=True)` "
+                 "envs (MinAtar game, RecordEpisodeStatistics, channels-first float32 "
+                 f"{tuple(env.observation_space.shape)} view); `A2C(\"CnnPolicy\", n_steps=5, "
+                 "ent_coef=0.01, vf_coef=0.5, learning_rate=7e-4)` with `MinAtarExtractor` "
+                 "(Conv2d(C,16,3) ReLU Flatten Linear(16·8·8,128) ReLU, our torso), "
+                 "`net_arch=[]`, `normalize_images=False`; SB3's default RMSprop(alpha=0.99, "
+                 "eps=1e-5), the same as ours")
+    else:
+        import ale_py
+        import gymnasium as gym
+        from stable_baselines3.common.env_util import make_atari_env
+        from stable_baselines3.common.sb2_compat.rmsprop_tf_like import RMSpropTFLike
+        from stable_baselines3.common.vec_env import VecFrameStack
+
+        gym.register_envs(ale_py)
+        env_id = args.sb3_env_id
+        env = VecFrameStack(make_atari_env(env_id, n_envs=args.num_envs, seed=1), n_stack=4)
+        # The RL Zoo's hyperparameters for A2C on Atari (hyperparams/a2c.yml, `atari:`).
+        model = A2C("CnnPolicy", env, n_steps=5, ent_coef=0.01, vf_coef=0.25, device="cpu",
+                    policy_kwargs={"optimizer_class": RMSpropTFLike,
+                                   "optimizer_kwargs": {"eps": 1e-5}},
+                    seed=1, verbose=0)
+        optimizer, setup = "RMSpropTFLike(eps=1e-5)", None
+    timer = sb3_timer(args.warmup, end_at)
     model.learn(total_timesteps=end_at + args.num_envs * 5, callback=timer)
     env.close()
     assert timer.start is not None and timer.end is not None
-    print(json.dumps({
+    line = {
         "start_step": timer.start[1], "end_step": timer.end[1],
         "seconds": timer.end[0] - timer.start[0], "cpu_seconds": timer.end[2] - timer.start[2],
         "torch_threads": torch.get_num_threads(),
-        "interop_threads": torch.get_num_interop_threads(), "env_id": args.sb3_env_id,
-        "optimizer": "RMSpropTFLike(eps=1e-5)",
+        "interop_threads": torch.get_num_interop_threads(), "env_id": env_id,
+        "optimizer": optimizer,
+    }
+    if setup is not None:
+        line["setup"] = setup
+    print(json.dumps(line))
+
+
+def load_script_module():
+    """`algos/rapl_a2c.py` as a module (its `Agent` and `Args`), without running it."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("rapl_a2c", SCRIPT)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up while it runs
+    spec.loader.exec_module(module)
+    return module
+
+
+def net_worker(args) -> None:
+    """The network-only bound: the script's per-rollout network work on random inputs, timed
+    over whole rollouts; prints one JSON line like `sb3_worker`."""
+    import warnings
+
+    import numpy as np
+    import torch
+    import torch.nn as nn
+
+    import routine_gym
+    from routine_gym.envs.factory import make_vector_env
+    from routine_gym.returns import critic_loss
+
+    warnings.filterwarnings("ignore", category=DeprecationWarning)
+    routine_gym.register_envs()
+    script = load_script_module()
+    defaults = script.Args()  # the script's own hyperparameters (lr, RMSprop, N, coefficients)
+    # What `start_run` sets for the script.
+    torch.manual_seed(1)
+    torch.distributions.Distribution.set_default_validate_args(False)
+    if args.worker_threads > 0:
+        torch.set_num_threads(args.worker_threads)
+
+    probe = make_vector_env(args.env_id, 1)
+    space, num_actions = probe.single_observation_space, int(probe.single_action_space.n)
+    probe.close()
+    agent = script.Agent(args.env_id, space, num_actions)
+    optimizer = torch.optim.RMSprop(agent.parameters(), lr=defaults.learning_rate,
+                                    alpha=defaults.rmsprop_alpha, eps=defaults.rmsprop_eps,
+                                    foreach=True)
+
+    n, e = defaults.num_steps, args.num_envs
+    rng = np.random.default_rng(1)
+    shape = (e, *space.shape)
+    if np.dtype(space.dtype) == np.uint8:
+        inputs = [rng.integers(0, 256, size=shape, dtype=np.uint8) for _ in range(NET_BATCHES)]
+    else:
+        inputs = [rng.integers(0, 2, size=shape).astype(space.dtype) for _ in range(NET_BATCHES)]
+    targets = [rng.normal(size=(n, e)) for _ in range(NET_BATCHES)]  # returns, float64
+    actions = [rng.integers(0, num_actions, size=(n, e)) for _ in range(NET_BATCHES)]
+    per_rollout = n * e
+    warm = -(-args.warmup // per_rollout)
+    timed = max(1, -(-args.steps // per_rollout))
+    total = (warm + timed) * per_rollout
+
+    def rollout(i: int) -> None:
+        """One rollout's network work of `rapl_a2c.py --mode a2c`, in its order."""
+        if defaults.anneal_lr:
+            optimizer.param_groups[0]["lr"] = (1.0 - i * per_rollout / total) \
+                * defaults.learning_rate
+        rollout_obs = []
+        for step in range(n):  # acting: no graph
+            obs = inputs[(i * (n + 1) + step) % NET_BATCHES]
+            with torch.no_grad():
+                action_t, _, _, _ = agent.get_action_and_value(torch.as_tensor(obs))
+            action_t.cpu().numpy()
+            rollout_obs.append(obs)
+        rollout_obs.append(inputs[(i * (n + 1) + n) % NET_BATCHES])  # the state after it
+        # The update: one pass over the n·e decision states and the e states after them.
+        logprobs, entropies, all_values = agent.evaluate(
+            torch.as_tensor(np.stack(rollout_obs).reshape(-1, *space.shape)),
+            torch.as_tensor(actions[i % NET_BATCHES].reshape(-1)))
+        values = all_values[: n * e].view(n, e)
+        all_values[n * e:].detach().cpu().numpy()  # the bootstrap
+        b_returns = torch.as_tensor(targets[i % NET_BATCHES], dtype=torch.float32)
+        advantages = b_returns - values
+        pg_loss = -(logprobs.view(n, e) * advantages.detach()).mean()
+        v_loss = advantages.pow(2).mean()
+        entropy_loss = entropies.view(n, e).mean()
+        prim_loss = torch.zeros(())
+        loss = pg_loss - defaults.ent_coef * entropy_loss + defaults.vf_coef * critic_loss(
+            v_loss, prim_loss, defaults.critic_loss, defaults.prim_coef)
+        optimizer.zero_grad()
+        loss.backward()
+        nn.utils.clip_grad_norm_(agent.parameters(), defaults.max_grad_norm)
+        optimizer.step()
+        for value in (v_loss, prim_loss, pg_loss, entropy_loss):  # the script logs these
+            value.item()
+
+    for i in range(warm):
+        rollout(i)
+    start, start_cpu = time.perf_counter(), time.process_time()
+    for i in range(warm, warm + timed):
+        rollout(i)
+    seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - start_cpu
+    print(json.dumps({
+        "start_step": warm * per_rollout, "end_step": total, "seconds": seconds,
+        "cpu_seconds": cpu_seconds, "torch_threads": torch.get_num_threads(),
+        "interop_threads": torch.get_num_interop_threads(), "env_id": args.env_id,
+        "obs": f"{tuple(space.shape)} {np.dtype(space.dtype).name}",
+        "num_actions": num_actions,
+        "parameters": sum(p.numel() for p in agent.parameters()),
+        "optimizer": f"RMSprop(lr={defaults.learning_rate:g}, alpha={defaults.rmsprop_alpha:g}, "
+                     f"eps={defaults.rmsprop_eps:g}, foreach=True)",
+        "setup": (f"Network-only bound: `Agent` of rapl_a2c.py for {tuple(space.shape)} "
+                  f"{np.dtype(space.dtype).name} observations and {num_actions} actions "
+                  f"({sum(p.numel() for p in agent.parameters()):,} parameters); per rollout "
+                  f"{n} acting passes on {e} observations without a graph (actions "
+                  f"`.cpu().numpy()`), one pass over the {n * e} decision states and the {e} "
+                  "bootstrap states (`Agent.evaluate`), the losses (value × "
+                  f"{defaults.vf_coef:g}, entropy × {defaults.ent_coef:g}) from random "
+                  f"returns, backward, `clip_grad_norm_({defaults.max_grad_norm:g})`, "
+                  f"RMSprop(lr={defaults.learning_rate:g}, alpha={defaults.rmsprop_alpha:g}, "
+                  f"eps={defaults.rmsprop_eps:g}, foreach=True) step; {NET_BATCHES} random "
+                  "input batches reused cyclically, no env; "
+                  f"{warm} warm-up + {timed} timed rollouts"),
     }))
 
 
@@ -383,20 +622,62 @@ def _num(value: float | None, spec: str) -> str:
     return "–" if value is None else format(value, spec)
 
 
+def is_minatar(env_id: str) -> bool:
+    """MinAtar's games have their own acceptance (the network-only bound, no SB3 target)."""
+    return env_id.startswith("MinAtar/")
+
+
+def threads_of(r: Result) -> int | None:
+    """The torch threads a result ran with (`2 (default)` → 2), None when unknown."""
+    match = re.match(r"\d+", r.torch_threads)
+    return int(match.group()) if match and int(match.group()) > 0 else None
+
+
+def bound_for(results: list[Result], r: Result) -> Result | None:
+    """The network-only bound with the same torch threads as `r` (best repeat)."""
+    threads = threads_of(r)
+    return best(results, f"net-t{threads}") if f"net-t{threads}" in CONFIGS else None
+
+
 def render(results: list[Result], info: dict[str, str], command: str, demo_note: str,
            args) -> str:
     """The markdown report."""
+    minatar = is_minatar(args.env_id)
     sb3_default, sb3_t1 = best(results, "sb3-default"), best(results, "sb3-t1")
+    has_net = any(CONFIGS.get(r.config, Config("", None, 0)).kind == "net" for r in results)
 
     def ratio(r: Result, ref: Result | None) -> str:
-        if ref is None or r.error:
+        if ref is None or r.error or CONFIGS[r.config].kind == "net":
             return "–"
         value = r.sps / ref.sps
-        mark = "" if value >= TARGET_RATIO or CONFIGS[r.config].kind == "sb3" else " (under)"
+        mark = "" if (minatar or value >= TARGET_RATIO or CONFIGS[r.config].kind == "sb3") \
+            else " (under)"
         return f"{value:.2f}×{mark}"
 
+    def of_bound(r: Result) -> str:
+        bound = bound_for(results, r)
+        if bound is None or r.error or CONFIGS[r.config].kind == "net":
+            return "–"
+        return f"{r.sps / bound.sps:.2f}×"
+
+    if minatar:
+        target = (f"Acceptance on MinAtar: `--mode a2c` ≥ {MINATAR_MIN_SPS:,} SPS and ≥ "
+                  f"{MINATAR_BOUND_RATIO}× the network-only bound with the same torch threads "
+                  "measured in the same run, routines on (`--mode rapl`) at least as fast; "
+                  "the ratios to SB3 are reported as measured, with no target.")
+    else:
+        target = (f"Target (SPEC §7): ours ≥ {TARGET_RATIO}× SB3 in SPS, routines on as fast "
+                  "as plain A2C.")
+    net_note = (" `net-t*`: the network-only bound, the script's per-rollout network work "
+                "alone on random inputs (no env), timed inside its worker over whole rollouts; "
+                "`÷ net bound`: SPS ÷ that bound with the same torch threads."
+                if has_net else "")
+    title = "# rapl_a2c.py vs Stable-Baselines3 A2C: agent steps per second"
+    if has_net:
+        title += ", and the network-only bound"
+    bound_head, bound_sep = (" ÷ net bound |", "---|") if has_net else ("", "")
     lines = [
-        "# rapl_a2c.py vs Stable-Baselines3 A2C: agent steps per second",
+        title,
         "",
         "Produced by `bench/bench_a2c_speed.py`; the command, machine and load are below. "
         f"{args.num_envs} envs, {args.warmup:,} warm-up + {args.steps:,} measured agent steps "
@@ -404,30 +685,37 @@ def render(results: list[Result], info: dict[str, str], command: str, demo_note:
         "them (external). `script SPS` is the script's own cumulative figure (warm-up "
         "included). `CPU s`: user + system CPU time of the process (all its threads) over the "
         "same steps; `steps per CPU s` is less sensitive to other jobs on a shared machine "
-        "than SPS, but charges a 2-thread run for its threads' spinning. Target (SPEC §7): "
-        f"ours ≥ {TARGET_RATIO}× SB3 in SPS, routines on as fast as plain A2C. The load "
-        "average lags: just after an `--async-envs` run it still counts that run's env "
-        "workers.",
+        f"than SPS, but charges a 2-thread run for its threads' spinning.{net_note} {target} "
+        "The load average lags: just after an `--async-envs` run it still counts that run's "
+        "env workers.",
         "",
         "| config | torch threads | repeat | load (1/5/15) before | steps timed | wall s | SPS "
-        "| script SPS | CPU s | steps per CPU s | routine use | ÷ SB3 (default threads) "
-        "| ÷ SB3 (1 thread) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        f"| script SPS | CPU s | steps per CPU s | routine use |{bound_head} "
+        "÷ SB3 (default threads) | ÷ SB3 (1 thread) |",
+        f"|---|---|---|---|---|---|---|---|---|---|---|{bound_sep}---|---|",
     ]
+    empty = "|" + " |" * (9 if has_net else 8)
     for r in results:
         if r.error:
             lines.append(f"| {r.config} | {r.torch_threads} | {r.repeat} | {r.load_before} "
-                         f"| failed: {r.error} | | | | | | | | |")
+                         f"| failed: {r.error} {empty}")
             continue
         use = f"{r.routine_use:.1f} %" if r.routine_use is not None else "–"
+        bound_cell = f" {of_bound(r)} |" if has_net else ""
         lines.append(
             f"| {r.config} | {r.torch_threads} | {r.repeat} | {r.load_before} "
             f"| {r.end_step - r.start_step:,} | {r.seconds:.1f} | **{r.sps:,.0f}** "
             f"| {r.script_sps if r.script_sps is not None else '–'} "
-            f"| {_num(r.cpu_seconds, '.1f')} | {_num(r.cpu_sps, ',.0f')} | {use} "
-            f"| {ratio(r, sb3_default)} | {ratio(r, sb3_t1)} |"
+            f"| {_num(r.cpu_seconds, '.1f')} | {_num(r.cpu_sps, ',.0f')} | {use} |{bound_cell}"
+            f" {ratio(r, sb3_default)} | {ratio(r, sb3_t1)} |"
         )
     lines += ["", "## Summary (best repeat of each configuration)", ""]
+    for name, config in CONFIGS.items():
+        net = best(results, name)
+        if config.kind == "net" and net is not None:
+            lines.append(f"- Network-only bound, {config.threads} torch "
+                         f"thread{'s' if config.threads > 1 else ''} ({name}): "
+                         f"{net.sps:,.0f} SPS (the script's network work alone, no env).")
     default_threads = script_default_threads()
     for name, config in CONFIGS.items():
         ours = best(results, name)
@@ -438,25 +726,47 @@ def render(results: list[Result], info: dict[str, str], command: str, demo_note:
             label += ", --async-envs"
         elif config.threads == default_threads:
             label += " (the script's default)"
+        bound = bound_for(results, ours)
+        if minatar:
+            lines.extend(_minatar_summary(label, config, ours, bound, sb3_default, sb3_t1))
+            continue
         if sb3_default is None:
             lines.append(f"- {label}: {ours.sps:,.0f} SPS; SB3 not measured")
-            continue
-        value = ours.sps / sb3_default.sps
-        verdict = "meets" if value >= TARGET_RATIO else "misses"
-        lines.append(f"- {label}: {ours.sps:,.0f} SPS = {value:.2f}× SB3 with torch's default "
-                     f"threads ({sb3_default.sps:,.0f}); {verdict} the {TARGET_RATIO}× target.")
-        if sb3_t1 is not None:
-            lines.append(f"  Against SB3 with 1 thread ({sb3_t1.sps:,.0f} SPS): "
-                         f"{ours.sps / sb3_t1.sps:.2f}×.")
-        if ours.cpu_sps and sb3_default.cpu_sps and sb3_t1 is not None and sb3_t1.cpu_sps:
-            lines.append(f"  Per CPU second: {ours.cpu_sps:,.0f} steps, "
-                         f"{ours.cpu_sps / sb3_default.cpu_sps:.2f}× SB3 default threads, "
-                         f"{ours.cpu_sps / sb3_t1.cpu_sps:.2f}× SB3 1 thread.")
+        else:
+            value = ours.sps / sb3_default.sps
+            verdict = "meets" if value >= TARGET_RATIO else "misses"
+            lines.append(f"- {label}: {ours.sps:,.0f} SPS = {value:.2f}× SB3 with torch's "
+                         f"default threads ({sb3_default.sps:,.0f}); {verdict} the "
+                         f"{TARGET_RATIO}× target.")
+            if sb3_t1 is not None:
+                lines.append(f"  Against SB3 with 1 thread ({sb3_t1.sps:,.0f} SPS): "
+                             f"{ours.sps / sb3_t1.sps:.2f}×.")
+            if ours.cpu_sps and sb3_default.cpu_sps and sb3_t1 is not None and sb3_t1.cpu_sps:
+                lines.append(f"  Per CPU second: {ours.cpu_sps:,.0f} steps, "
+                             f"{ours.cpu_sps / sb3_default.cpu_sps:.2f}× SB3 default threads, "
+                             f"{ours.cpu_sps / sb3_t1.cpu_sps:.2f}× SB3 1 thread.")
+        if bound is not None:
+            lines.append(f"  {ours.sps / bound.sps:.2f}× the network-only bound with the same "
+                         f"threads ({bound.sps:,.0f}).")
     for variant in ("t1", "t2", "async-t1", "async-t2"):
         a2c, rapl = best(results, f"a2c-{variant}"), best(results, f"rapl-{variant}")
         if a2c is not None and rapl is not None:
-            lines.append(f"- rapl / a2c ({variant}): {rapl.sps / a2c.sps:.2f}× in agent steps "
-                         "(a routine of length ℓ counts ℓ steps).")
+            line = (f"- rapl / a2c ({variant}): {rapl.sps / a2c.sps:.2f}× in agent steps "
+                    "(a routine of length ℓ counts ℓ steps)")
+            if minatar:
+                line += (f"; rapl at least as fast as a2c: "
+                         f"{'yes' if rapl.sps >= a2c.sps else 'no'}")
+            lines.append(line + ".")
+    if minatar:
+        for sb3 in (sb3_default, sb3_t1):
+            if sb3 is None:
+                continue
+            bound = bound_for(results, sb3)
+            line = (f"- SB3 A2C ({sb3.config}, torch threads: {sb3.torch_threads}): "
+                    f"{sb3.sps:,.0f} SPS")
+            if bound is not None:
+                line += f" = {sb3.sps / bound.sps:.2f}× the network-only bound ({bound.sps:,.0f})"
+            lines.append(line + ".")
     if default_threads == 0:
         lines.append("- The script's default `--torch-threads 0` is torch's own thread count "
                      f"({os.cpu_count()} here), i.e. the `-t{os.cpu_count()}` rows.")
@@ -464,6 +774,12 @@ def render(results: list[Result], info: dict[str, str], command: str, demo_note:
     lines += ["", "## Setup", "", f"- Command: `{command}`", f"- RAPL demo: {demo_note}"]
     if routines:
         lines.append("- Routines mined: " + "; ".join(f"`{x}`" for x in routines))
+    setups: list[str] = []
+    for r in results:
+        setup = r.extra.get("setup")
+        if setup and setup not in setups:
+            setups.append(setup)
+    lines += [f"- {setup}." for setup in setups]
     lines += ["- Commands per configuration (first repeat):"]
     seen: set[str] = set()
     for r in results:
@@ -475,12 +791,45 @@ def render(results: list[Result], info: dict[str, str], command: str, demo_note:
     return "\n".join(lines) + "\n"
 
 
+def _minatar_summary(label: str, config: Config, ours: Result, bound: Result | None,
+                     sb3_default: Result | None, sb3_t1: Result | None) -> list[str]:
+    """One of our configurations on MinAtar: ÷ the bound, the acceptance (a2c), ÷ SB3."""
+    if bound is None:
+        head = f"- {label}: {ours.sps:,.0f} SPS; network-only bound not measured"
+    else:
+        head = (f"- {label}: {ours.sps:,.0f} SPS = {ours.sps / bound.sps:.2f}× the "
+                f"network-only bound ({bound.sps:,.0f})")
+    if config.mode == "a2c":
+        fast = ours.sps >= MINATAR_MIN_SPS
+        near = None if bound is None else ours.sps / bound.sps >= MINATAR_BOUND_RATIO
+        outcome = ("misses" if not fast or near is False else
+                   "meets" if near else "cannot be judged against")
+        head += (f"; {outcome} the MinAtar acceptance (≥ {MINATAR_MIN_SPS:,} SPS: "
+                 f"{'yes' if fast else 'no'}; ≥ {MINATAR_BOUND_RATIO}× the bound: "
+                 f"{'not measured' if near is None else 'yes' if near else 'no'})")
+    lines = [head + "."]
+    against = [f"{ours.sps / sb3.sps:.2f}× SB3 with {what} ({sb3.sps:,.0f})"
+               for sb3, what in ((sb3_default, "torch's default threads"),
+                                 (sb3_t1, "1 thread")) if sb3 is not None]
+    lines.append("  As measured: " + ", ".join(against) + "." if against
+                 else "  SB3 not measured.")
+    if ours.cpu_sps:
+        per_cpu = f"  Per CPU second: {ours.cpu_sps:,.0f} steps"
+        if bound is not None and bound.cpu_sps:
+            per_cpu += f", {ours.cpu_sps / bound.cpu_sps:.2f}× the bound's"
+        lines.append(per_cpu + ".")
+    return lines
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--env-id", default="ALE/Qbert-v5", help="env of rapl_a2c.py")
+    parser.add_argument("--env-id", default="ALE/Qbert-v5",
+                        help="env of rapl_a2c.py and of the network-only bound; a MinAtar/ "
+                             "env is SB3's too")
     parser.add_argument("--sb3-env-id", default="QbertNoFrameskip-v4",
-                        help="env of SB3's make_atari_env (the RL Zoo uses NoFrameskip-v4)")
+                        help="Atari: env of SB3's make_atari_env (the RL Zoo uses "
+                             "NoFrameskip-v4); unused with a MinAtar/ --env-id")
     parser.add_argument("--num-envs", type=int, default=16)
     parser.add_argument("--warmup", type=int, default=2000, help="agent steps before timing")
     parser.add_argument("--steps", type=int, default=20000, help="agent steps timed")
@@ -496,7 +845,7 @@ def main(argv: list[str] | None = None) -> None:
                         help="markdown report; the raw numbers go beside it as .json")
     parser.add_argument("--from-json", type=Path, default=None,
                         help="run nothing: write the report again from this file's raw numbers")
-    parser.add_argument("--worker", choices=["sb3"], help=argparse.SUPPRESS)
+    parser.add_argument("--worker", choices=["sb3", "net"], help=argparse.SUPPRESS)
     parser.add_argument("--worker-threads", type=int, default=0, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     for name in ("num_envs", "steps", "log_every", "repeats"):
@@ -508,6 +857,9 @@ def main(argv: list[str] | None = None) -> None:
     if args.worker == "sb3":
         sb3_worker(args)
         return
+    if args.worker == "net":
+        net_worker(args)
+        return
 
     from routine_gym.plumbing.atomic import atomic_write_text
 
@@ -515,6 +867,9 @@ def main(argv: list[str] | None = None) -> None:
         raw = json.loads(args.from_json.read_text())
         for name in ("warmup", "steps", "num_envs"):
             setattr(args, name, raw[name])
+        # Older files lack `env_id`: it is in their command (else the default, Qbert).
+        given = re.search(r"--env-id[ =](\S+)", raw["command"])
+        args.env_id = raw.get("env_id") or (given.group(1) if given else "ALE/Qbert-v5")
         results = [Result(**r) for r in raw["results"]]
         report = render(results, raw["machine"], raw["command"], raw["demo"], args)
         args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -538,7 +893,7 @@ def main(argv: list[str] | None = None) -> None:
                 if config.kind == "ours":
                     result = run_ours(name, config, args, demo, Path(tmp) / "runs", repeat)
                 else:
-                    result = run_sb3(name, config.threads, args, repeat)
+                    result = run_worker(name, config, args, repeat)
                 results.append(result)
                 print(f"{name:12s} repeat {repeat}  load {result.load_before}  "
                       + (f"FAILED {result.error}" if result.error else
@@ -548,7 +903,7 @@ def main(argv: list[str] | None = None) -> None:
     info["busiest processes at end"] = other_processes()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(args.out, render(results, info, command, demo_note, args))
-    raw = {"command": command, "machine": info, "demo": demo_note,
+    raw = {"command": command, "machine": info, "demo": demo_note, "env_id": args.env_id,
            "warmup": args.warmup, "steps": args.steps, "num_envs": args.num_envs,
            "results": [asdict(r) for r in results]}
     atomic_write_text(args.out.with_suffix(".json"), json.dumps(raw, indent=2) + "\n")
