@@ -214,6 +214,10 @@ class Agent(nn.Module):
             action = dist.sample()
         return action, dist.log_prob(action), dist.entropy(), self.critic(hidden).squeeze(-1)
 
+    def act(self, obs: torch.Tensor) -> torch.Tensor:
+        """Sample actions (the same draws as `get_action_and_value`, nothing else computed)."""
+        return Categorical(logits=self.actor(self.encoder(obs))).sample()
+
     def evaluate(self, obs: torch.Tensor, action: torch.Tensor):
         """One pass over a rollout: log-probabilities and entropies of the `len(action)` first
         states' actions, and the values of all `len(obs)` states (the rest: bootstraps)."""
@@ -350,10 +354,8 @@ def main(args: Args) -> None:
 
         # Acting needs no graph: the update runs the network once over the whole rollout.
         for step in range(n):
-            with torch.no_grad():
-                action_t, _, _, _ = agent.get_action_and_value(
-                    torch.as_tensor(next_obs, device=device))
-            action = action_t.cpu().numpy()
+            with torch.inference_mode():
+                action = agent.act(torch.as_tensor(next_obs, device=device)).cpu().numpy()
             actions[step] = action
             decision_obs[step] = next_obs
             next_obs, reward, term, trunc, info = envs.step(action)

@@ -15,7 +15,7 @@ shared between them:
   torch threads: the `Agent` of `rapl_a2c.py` (imported from the file) for the env's agent
   observation space and primitive action count (`--mode a2c`), trained with exactly the
   script's per-rollout network work and defaults (its `Args`): `--num-steps` acting passes
-  `get_action_and_value` on batches of `--num-envs` observations without a graph, each
+  `Agent.act` on batches of `--num-envs` observations without a graph, each
   sampled action brought back with `.cpu().numpy()`, one `Agent.evaluate` pass over the
   rollout's decision states and the bootstrap states, the losses (policy, value ×
   `vf_coef`, entropy × `ent_coef`) against random returns, the loss values read with
@@ -545,9 +545,8 @@ def net_worker(args) -> None:
         rollout_obs = []
         for step in range(n):  # acting: no graph
             obs = inputs[(i * (n + 1) + step) % NET_BATCHES]
-            with torch.no_grad():
-                action_t, _, _, _ = agent.get_action_and_value(torch.as_tensor(obs))
-            action_t.cpu().numpy()
+            with torch.inference_mode():
+                agent.act(torch.as_tensor(obs)).cpu().numpy()
             rollout_obs.append(obs)
         rollout_obs.append(inputs[(i * (n + 1) + n) % NET_BATCHES])  # the state after it
         # The update: one pass over the n·e decision states and the e states after them.

@@ -79,3 +79,18 @@ def test_its_gradient_is_the_per_step_graphs_gradient_to_float_rounding(script):
         grads.append([p.grad.clone() for p in agent.parameters()])
     for batched, stacked in zip(*grads, strict=True):
         torch.testing.assert_close(batched, stacked, rtol=1e-5, atol=1e-7)
+
+
+def test_acting_draws_the_actions_get_action_and_value_draws(script):
+    torch.manual_seed(0)
+    obs, _, _ = _rollout(seed=2)
+    agent = script.Agent("MinAtar/Breakout-v1", gym.spaces.Box(0.0, 1.0, obs.shape[2:],
+                                                                np.float32), 6)
+    draws = []
+    for act_only in (True, False):
+        torch.manual_seed(7)
+        with torch.no_grad():
+            draws.append(torch.stack([
+                agent.act(torch.as_tensor(o)) if act_only
+                else agent.get_action_and_value(torch.as_tensor(o))[0] for o in obs]))
+    assert torch.equal(*draws) and len(set(draws[0].flatten().tolist())) > 1

@@ -110,7 +110,8 @@ class MinAtarVectorEnv(VectorEnv):
         self.render_mode = None
         self.closed = False
 
-        self._elapsed = np.zeros(num_envs, dtype=np.int64)
+        self._games = [env.game for env in self.games]  # MinAtar's own Environment objects
+        self._elapsed = [0] * num_envs
         self._returns = [0.0] * num_envs
         self._lengths = [0] * num_envs
         self._start_times = [0.0] * num_envs
@@ -158,35 +159,33 @@ class MinAtarVectorEnv(VectorEnv):
                              f"{self.single_action_space}")
         states = np.empty((e, *self._state_shape), dtype=bool)
         final_states = np.empty((e, *self._state_shape), dtype=bool)
-        rewards = np.zeros(e, dtype=np.float64)
-        terminated = np.zeros(e, dtype=bool)
-        truncated = np.zeros(e, dtype=bool)
-        if self.has_routines:
-            step_lengths = np.zeros(e, dtype=np.int64)
+        rewards, terminated, truncated = [0.0] * e, [False] * e, [False] * e
+        routines, record = self.has_routines, self.record_observations
+        if routines:
+            step_lengths = [1] * e
             step_rewards = np.zeros((e, length), dtype=np.float64)
             step_terminated = np.zeros((e, length), dtype=bool)
             step_truncated = np.zeros((e, length), dtype=bool)
             step_actions = self._padded_actions[actions]  # a copy: fancy indexing
-            if self.record_observations:
+            if record:
                 inner_states = np.zeros((e, length, *self._state_shape), dtype=bool)
         episodes: list[tuple[int, float, int, float]] = []
-        sequences, games, limit = self._sequences, self.games, self.max_episode_steps
+        sequences, games, limit = self._sequences, self._games, self.max_episode_steps
         elapsed, returns, lengths = self._elapsed, self._returns, self._lengths
 
-        for i in range(e):
-            a = int(actions[i])
-            game = games[i].game
+        # Python numbers and lists inside the loop: a numpy element costs more than the game.
+        for i, a in enumerate(actions.tolist()):
+            game = games[i]
             total, executed, term, trunc = 0.0, 0, False, False
             for primitive in sequences[a]:
                 reward, term = game.act(primitive)
-                reward = float(reward)
-                term = bool(term)
+                reward, term = float(reward), bool(term)
                 elapsed[i] += 1
                 trunc = limit is not None and elapsed[i] >= limit
                 total += reward
-                if self.has_routines:
+                if routines:
                     step_rewards[i, executed] = reward
-                    if self.record_observations:
+                    if record:
                         inner_states[i, executed] = game.state()
                 executed += 1
                 if term or trunc:
@@ -194,21 +193,25 @@ class MinAtarVectorEnv(VectorEnv):
             returns[i] += total
             lengths[i] += executed
             rewards[i], terminated[i], truncated[i] = total, term, trunc
-            if self.has_routines:
+            if routines:
                 step_lengths[i] = executed
-                step_actions[i, executed:] = PAD_ACTION
+                if executed < len(sequences[a]):
+                    step_actions[i, executed:] = PAD_ACTION
                 step_terminated[i, executed - 1] = term
                 step_truncated[i, executed - 1] = trunc
             if term or trunc:
-                final_states[i] = (inner_states[i, executed - 1] if self.record_observations
-                                   else game.state())
+                final_states[i] = inner_states[i, executed - 1] if record else game.state()
                 episodes.append((i, returns[i], lengths[i],
                                  round(time.perf_counter() - self._start_times[i], 6)))
-                states[i], _ = games[i].reset()
+                states[i], _ = self.games[i].reset()
                 self._start_episode(i)
             else:
-                states[i] = (inner_states[i, executed - 1] if self.record_observations
-                             else game.state())
+                states[i] = inner_states[i, executed - 1] if record else game.state()
+        rewards = np.array(rewards, dtype=np.float64)
+        terminated = np.array(terminated, dtype=bool)
+        truncated = np.array(truncated, dtype=bool)
+        if routines:
+            step_lengths = np.array(step_lengths, dtype=np.int64)
 
         done = terminated | truncated
         info: dict[str, Any] = {}
