@@ -29,55 +29,66 @@ __all__ = ["masked_gru"]
 
 
 class _MaskedGRU(torch.autograd.Function):
+    # Both loops index prebuilt per-step views (`unbind`, one C call each): at 16 × 128 a view
+    # made in Python costs about what the arithmetic does.
+
     @staticmethod
     def forward(ctx, gi: torch.Tensor, mask: torch.Tensor, weight_hh: torch.Tensor,
                 bias_hh: torch.Tensor) -> torch.Tensor:
         b, steps, three_h = gi.shape
         h = three_h // 3
-        gi_t = gi.transpose(0, 1)  # [T, B, 3H]: each step's gates contiguous in memory
-        mask_t = mask.t().unsqueeze(-1)  # [T, B, 1]
+        gi_t = gi.transpose(0, 1)  # [T, B, 3H]
         outputs = gi.new_empty(steps + 1, b, h)  # h_{−1} = 0, then h_0 … h_{T−1}
         outputs[0] = 0
         rz = gi.new_empty(steps, b, 2 * h)  # σ of the r and z gates
         n = gi.new_empty(steps, b, h)
         gh_n = gi.new_empty(steps, b, h)  # W_hn h_{t−1} + b_hn
-        weight_t = weight_hh.t()
-        for t in range(steps):
-            hidden = outputs[t]
-            gh = torch.addmm(bias_hh, hidden, weight_t)
-            torch.sigmoid(gi_t[t, :, :2 * h] + gh[:, :2 * h], out=rz[t])
-            gh_n[t] = gh[:, 2 * h:]
-            torch.tanh(torch.addcmul(gi_t[t, :, 2 * h:], rz[t, :, :h], gh_n[t]), out=n[t])
+        weight_rz, weight_n = weight_hh[:2 * h].t(), weight_hh[2 * h:].t()
+        bias_rz, bias_n = bias_hh[:2 * h], bias_hh[2 * h:]
+        views = zip(outputs[:-1].unbind(0), outputs[1:].unbind(0),
+                    gi_t[..., :2 * h].unbind(0), gi_t[..., 2 * h:].unbind(0),
+                    mask.t().unsqueeze(-1).unbind(0), rz.unbind(0), rz[..., :h].unbind(0),
+                    rz[..., h:].unbind(0), n.unbind(0), gh_n.unbind(0), strict=True)
+        for hidden, out, gi_rz, gi_n, m, rz_t, r, z, n_t, gh_n_t in views:
+            torch.sigmoid(torch.addmm(bias_rz, hidden, weight_rz).add_(gi_rz), out=rz_t)
+            torch.addmm(bias_n, hidden, weight_n, out=gh_n_t)
+            torch.tanh(torch.addcmul(gi_n, r, gh_n_t), out=n_t)
             # h_t = ((1 − z) n + z h_{t−1}) m_t = (n + z (h_{t−1} − n)) m_t
-            torch.mul(torch.addcmul(n[t], rz[t, :, h:], hidden - n[t]), mask_t[t],
-                      out=outputs[t + 1])
-        ctx.save_for_backward(mask_t, weight_hh, outputs, rz, n, gh_n)
+            torch.mul(torch.addcmul(n_t, z, hidden - n_t), m, out=out)
+        ctx.save_for_backward(mask, weight_hh, outputs, rz, n, gh_n)
         return outputs[1:].transpose(0, 1)
 
     @staticmethod
     def backward(ctx, grad_outputs: torch.Tensor):
-        mask_t, weight_hh, outputs, rz, n, gh_n = ctx.saved_tensors
+        mask, weight_hh, outputs, rz, n, gh_n = ctx.saved_tensors
         steps, b, h = n.shape
         previous = outputs[:-1]  # h_{t−1}
         r, z = rz[..., :h], rz[..., h:]
         # What does not depend on the gradient coming back, for all steps at once.
         unmasked = torch.addcmul(n, z, previous - n)
-        to_n = (1 - z) * (1 - n * n)  # ∂h_t/∂(n's pre-activation), before the mask
-        to_z = (previous - n) * z * (1 - z)  # ∂h_t/∂(z's pre-activation)
+        mask_t = mask.t().unsqueeze(-1)
+        to_n = (1 - z) * (1 - n * n) * mask_t  # ∂h_t/∂(n's pre-activation)
+        to_z = (previous - n) * z * (1 - z) * mask_t  # ∂h_t/∂(z's pre-activation)
         to_r = gh_n * r * (1 - r)  # ∂(n's pre-activation)/∂(r's pre-activation)
+        to_previous = z * mask_t  # ∂h_t/∂h_{t−1} outside the gates
         grad_outputs = grad_outputs.transpose(0, 1)
         grad_h = grad_outputs.new_empty(steps, b, h)  # ∂L/∂h_t, all paths
         grad_gh = grad_outputs.new_empty(steps, b, 3 * h)  # ∂L/∂(W_hh h_{t−1} + b_hh)
         grad_pre_n = grad_outputs.new_empty(steps, b, h)
         carried = grad_outputs.new_zeros(b, h)  # ∂L/∂h_t from the steps after t
-        for t in reversed(range(steps)):
-            torch.add(grad_outputs[t], carried, out=grad_h[t])
-            grad_unmasked = grad_h[t] * mask_t[t]
-            torch.mul(grad_unmasked, to_n[t], out=grad_pre_n[t])
-            torch.mul(grad_pre_n[t], to_r[t], out=grad_gh[t, :, :h])
-            torch.mul(grad_unmasked, to_z[t], out=grad_gh[t, :, h:2 * h])
-            torch.mul(grad_pre_n[t], r[t], out=grad_gh[t, :, 2 * h:])
-            carried = torch.addmm(grad_unmasked * z[t], grad_gh[t], weight_hh)
+        views = zip(grad_outputs.unbind(0), grad_h.unbind(0), grad_pre_n.unbind(0),
+                    grad_gh.unbind(0), grad_gh[..., :h].unbind(0),
+                    grad_gh[..., h:2 * h].unbind(0), grad_gh[..., 2 * h:].unbind(0),
+                    to_n.unbind(0), to_z.unbind(0), to_r.unbind(0), r.unbind(0),
+                    to_previous.unbind(0), strict=True)
+        for (grad_out, grad_h_t, grad_n, grad_gh_t, grad_r_t, grad_z_t, grad_ghn_t, to_n_t,
+             to_z_t, to_r_t, r_t, to_previous_t) in reversed(list(views)):
+            torch.add(grad_out, carried, out=grad_h_t)
+            torch.mul(grad_h_t, to_n_t, out=grad_n)
+            torch.mul(grad_n, to_r_t, out=grad_r_t)
+            torch.mul(grad_h_t, to_z_t, out=grad_z_t)
+            torch.mul(grad_n, r_t, out=grad_ghn_t)
+            carried = torch.addmm(grad_h_t * to_previous_t, grad_gh_t, weight_hh)
         grad_mask = (grad_h * unmasked).sum(dim=-1).t()
         grad_gi = torch.cat([grad_gh[..., :2 * h], grad_pre_n], dim=-1).transpose(0, 1)
         grad_weight = grad_gh.reshape(-1, 3 * h).t() @ previous.reshape(-1, h)
