@@ -58,3 +58,17 @@ def test_float32_matches_the_loop_to_float_rounding():
     with torch.no_grad():
         torch.testing.assert_close(masked_gru(gates, mask, cell.weight_hh, cell.bias_hh),
                                    _loop(cell, x, mask), rtol=1e-5, atol=1e-6)
+
+
+def test_the_elbo_decoder_pass_is_policy_logits_of_every_step_and_segment():
+    from routine_gym.baselines.compile.model import CompILE, CompILEConfig
+
+    torch.manual_seed(3)
+    model = CompILE(CompILEConfig(env_id="CartPole-v1", obs_shape=(4,), obs_dtype="float32",
+                                  num_actions=3, num_latents=5)).double()
+    features = torch.randn(2, 6, model.encoder.num_features, dtype=torch.float64)
+    latents = torch.softmax(torch.randn(4, 2, 5, dtype=torch.float64), dim=-1)  # [M, B, Z]
+    expanded = model.policy_logits(features.unsqueeze(0).expand(4, -1, -1, -1),
+                                   latents.unsqueeze(2).expand(-1, -1, 6, -1))
+    torch.testing.assert_close(model._segment_policy_logits(features, latents), expanded,
+                               rtol=1e-12, atol=1e-12)

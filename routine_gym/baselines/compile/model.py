@@ -203,6 +203,18 @@ class CompILE(nn.Module):
         """The decoder's action logits `π(· | s, z)`: `[..., F]`, `[..., Z]` to `[..., A]`."""
         return self.decoder(torch.cat([features, latents], dim=-1))
 
+    def _segment_policy_logits(self, features: torch.Tensor,
+                               latents: torch.Tensor) -> torch.Tensor:
+        """`policy_logits` of every step under every segment's latent, `[M, B, L, A]` from
+        features `[B, L, F]` and latents `[M, B, Z]`, without repeating the work: the decoder's
+        first layer is `W_s s + W_z z + b`, so `W_s s` is computed once per step and `W_z z + b`
+        once per segment (not M·L times each)."""
+        first, activation, last = self.decoder
+        width = features.shape[-1]
+        per_step = F.linear(features, first.weight[:, :width])  # [B, L, H]
+        per_segment = F.linear(latents, first.weight[:, width:], first.bias)  # [M, B, H]
+        return last(activation(per_step.unsqueeze(0) + per_segment.unsqueeze(2)))
+
     def termination_logits(self, features: torch.Tensor, latents: torch.Tensor) -> torch.Tensor:
         """The termination head's logit of `β(s, z)`: `[..., F]`, `[..., Z]` to `[...]`."""
         return self.termination(torch.cat([features, latents], dim=-1)).squeeze(-1)
@@ -211,10 +223,8 @@ class CompILE(nn.Module):
                       recognition: Recognition) -> dict[str, torch.Tensor]:
         """The loss of the module docstring and its terms (`loss`, `nll`, `kl_z`, `kl_b`)."""
         c = self.config
-        m, _, length = recognition.boundaries.shape[0], *actions.shape
-        z = recognition.latents.unsqueeze(2).expand(-1, -1, length, -1)  # [M, B, L, Z]
-        log_probs = F.log_softmax(
-            self.policy_logits(features.unsqueeze(0).expand(m, -1, -1, -1), z), dim=-1)
+        log_probs = F.log_softmax(self._segment_policy_logits(features, recognition.latents),
+                                  dim=-1)
         nll = reconstruction_nll(log_probs, actions,
                                  segment_probabilities(recognition.boundaries))
         kl_z = kl_latent_uniform(recognition.latent_logits).sum(dim=0).mean()
