@@ -82,7 +82,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import NamedTuple
 
-from common import base_machine_info, load_average
+from common import base_machine_info, git_head, load_average, memory, thread_env_vars
 
 REPO = Path(__file__).resolve().parents[1]
 SCRIPT = REPO / "algos" / "rapl_a2c.py"
@@ -153,17 +153,14 @@ def machine_info() -> dict[str, str]:
 
     info = {
         **base_machine_info(),
-        "memory": _memory(),
+        "memory": memory(),
         "torch": f"{torch.__version__} (default threads {torch.get_num_threads()}, "
                  f"interop {torch.get_num_interop_threads()})",
         "gymnasium": gym.__version__,
         "ale-py": ale_py.__version__,
-        "thread env vars": ", ".join(
-            f"{k}={os.environ[k]}" for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS")
-            if k in os.environ
-        ) or "none set",
+        "thread env vars": thread_env_vars(),
         "rapl_a2c.py sha256": hashlib.sha256(SCRIPT.read_bytes()).hexdigest()[:16],
-        "git HEAD": _git_head(),
+        "git HEAD": git_head(REPO, [str(SCRIPT)]),
     }
     try:
         import stable_baselines3
@@ -174,25 +171,8 @@ def machine_info() -> dict[str, str]:
     return info
 
 
-def _memory() -> str:
-    try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemTotal"):
-                return f"{int(line.split()[1]) / 2**20:.1f} GiB"
-    except OSError:
-        pass
-    return "unknown"
 
 
-def _git_head() -> str:
-    try:
-        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO,
-                              capture_output=True, text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--", str(SCRIPT)], cwd=REPO,
-                               capture_output=True, text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-    return head + (" (rapl_a2c.py modified)" if dirty else "")
 
 
 def process_cpu_seconds(pid: int) -> float | None:

@@ -56,7 +56,7 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from types import ModuleType
 
-from common import base_machine_info, load_average
+from common import base_machine_info, git_head, load_average, memory, thread_env_vars
 
 REPO = Path(__file__).resolve().parents[1]
 SCRIPT = REPO / "algos" / "compile_a2c.py"
@@ -374,42 +374,19 @@ def machine_info() -> dict[str, str]:
 
     info = {
         **base_machine_info(),
-        "memory": _memory(),
+        "memory": memory(),
         "torch": f"{torch.__version__} (default threads {torch.get_num_threads()}, "
                  f"interop {torch.get_num_interop_threads()})",
-        "thread env vars": ", ".join(
-            f"{k}={os.environ[k]}" for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS")
-            if k in os.environ
-        ) or "none set",
+        "thread env vars": thread_env_vars(),
         "compile_a2c.py sha256": hashlib.sha256(SCRIPT.read_bytes()).hexdigest()[:16],
-        "git HEAD": _git_head(),
+        "git HEAD": git_head(REPO, [str(SCRIPT), "routine_gym/baselines/compile",
+                                    "routine_gym/imitation", "routine_gym/networks.py"]),
     }
     return info
 
 
-def _memory() -> str:
-    try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemTotal"):
-                return f"{int(line.split()[1]) / 2**20:.1f} GiB"
-    except OSError:
-        pass
-    return "unknown"
 
 
-def _git_head() -> str:
-    """HEAD, and whether the files the fit runs differ from it."""
-    try:
-        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO,
-                              capture_output=True, text=True, check=True).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--", str(SCRIPT),
-             "routine_gym/baselines/compile", "routine_gym/imitation", "routine_gym/networks.py"],
-            cwd=REPO, capture_output=True, text=True, check=True).stdout.split("\n")
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-    changed = [line[3:] for line in dirty if line.strip()]
-    return head + (f" (modified: {', '.join(changed)})" if changed else "")
 
 
 def _num(value: float | None, spec: str = ".1f") -> str:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import datetime as dt
 import os
 import platform
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -40,3 +41,33 @@ def base_machine_info() -> dict[str, str]:
         "numpy": np.__version__,
         "platform": platform.platform(),
     }
+
+
+def memory() -> str:
+    """The machine's memory from /proc/meminfo (Linux), e.g. `23.5 GiB`."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemTotal"):
+                return f"{int(line.split()[1]) / 2**20:.1f} GiB"
+    except OSError:
+        pass
+    return "unknown"
+
+
+def thread_env_vars() -> str:
+    """The thread-count environment variables set for this process, or `none set`."""
+    return ", ".join(f"{k}={os.environ[k]}" for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS")
+                     if k in os.environ) or "none set"
+
+
+def git_head(repo: Path, paths: list[str]) -> str:
+    """HEAD of `repo`, and which of `paths` (the code the benchmark runs) differ from it."""
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=repo,
+                              capture_output=True, text=True, check=True).stdout.strip()
+        status = subprocess.run(["git", "status", "--porcelain", "--", *paths], cwd=repo,
+                                capture_output=True, text=True, check=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    changed = [line[3:] for line in status.splitlines() if line.strip()]
+    return head + (f" (modified: {', '.join(changed)})" if changed else "")
