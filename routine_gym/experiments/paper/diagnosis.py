@@ -251,6 +251,9 @@ def _draw(w: Writer, games: list[str], variants: list[str],
 
 def _draw_runs(w: Writer, games: list[str], runs: list[RunRecord]) -> None:
     """Each run's final score against the gradient updates it made, a panel per game."""
+    from matplotlib.lines import Line2D
+    from matplotlib.ticker import FuncFormatter, MaxNLocator
+
     labels = game_labels(games)
     colours = {**COLOURS, **VARIANT_COLOURS}
     fig = figure(max(10.0, 2.6 * len(games)), 4.0)
@@ -260,11 +263,13 @@ def _draw_runs(w: Writer, games: list[str], runs: list[RunRecord]) -> None:
             ax.scatter(_counter(r, "updates"), r.score, color=colours.get(label(r), "#333333"),
                        marker=MARKERS[VARIANTS.index(label(r))], s=28, alpha=0.85)
         ax.set_title(labels[g])
-        ax.set_xlabel("gradient updates")
+        ax.set_xlabel("gradient updates (thousands)")
+        # Thousands, at most four ticks: 12,500 updates in full digits ran into each other.
+        ax.xaxis.set_major_locator(MaxNLocator(4))
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x / 1000:g}"))
     axes[0].set_ylabel("final score")
 
     present = [v for v in VARIANTS if any(label(r) == v for r in runs)]
-    from matplotlib.lines import Line2D
 
     fig.legend(handles=[Line2D([], [], color=colours.get(v, "#333333"), linestyle="",
                                marker=MARKERS[VARIANTS.index(v)], label=v) for v in present],
