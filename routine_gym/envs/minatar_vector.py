@@ -34,7 +34,6 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 
-from routine_gym.envs.minatar import MinAtarEnv
 from routine_gym.macro_info import PAD_ACTION
 
 __all__ = ["MinAtarVectorEnv"]
@@ -80,7 +79,10 @@ class MinAtarVectorEnv(VectorEnv):
             raise ValueError(f"MinAtarVectorEnv runs MinAtar's games, not {env_id!r}")
         kwargs = {**spec.kwargs, **(env_kwargs or {})}
         self.max_episode_steps = kwargs.pop("max_episode_steps", spec.max_episode_steps)
-        self.games = [MinAtarEnv(**kwargs) for _ in range(num_envs)]
+        # `MinAtarEnv` through its registered entry point (`minatar.py` builds this class in
+        # its profile, so importing it here would be an import cycle).
+        make_game = gym.envs.registration.load_env_creator(spec.entry_point)
+        self.games = [make_game(**kwargs) for _ in range(num_envs)]
         self.num_envs = num_envs
         self.spec = spec
 
