@@ -224,13 +224,13 @@ class MinAtarVectorEnv(VectorEnv):
 
         done = terminated | truncated
         info: dict[str, Any] = {}
-        if self.has_routines:
+        if routines:
             routine = {"routine_index": np.where(actions >= self.num_primitive_actions,
                                                  actions - self.num_primitive_actions, -1),
                        "routine_length": step_lengths, "routine_actions": step_actions,
                        "routine_rewards": step_rewards, "routine_terminated": step_terminated,
                        "routine_truncated": step_truncated}
-            if self.record_observations:
+            if record:
                 routine["routine_observations"] = self._view(inner_states)
             # The envs whose episode ended report their step in final_info (the top level is
             # their reset's, which has no routine keys), as SyncVectorEnv arranges it.
@@ -238,24 +238,22 @@ class MinAtarVectorEnv(VectorEnv):
                 info.update(_masked(routine, ~done))
         if episodes:
             final_info: dict[str, Any] = {}
-            if self.has_routines:
+            if routines:
                 final_info.update(_masked(routine, done))
-            ended = np.array([i for i, *_ in episodes])
+            # The envs with an episode end are the done ones, in order.
             episode = {"r": np.zeros(e, dtype=np.float64), "l": np.zeros(e, dtype=np.int64),
                        "t": np.zeros(e, dtype=np.float64)}
             for i, ret, steps, seconds in episodes:
                 episode["r"][i], episode["l"][i], episode["t"][i] = ret, steps, seconds
-            mask = np.zeros(e, dtype=bool)
-            mask[ended] = True
             for key in ("r", "l", "t"):
-                episode[f"_{key}"] = mask.copy()
-            final_info["episode"], final_info["_episode"] = episode, mask.copy()
+                episode[f"_{key}"] = done.copy()
+            final_info["episode"], final_info["_episode"] = episode, done.copy()
             final_obs = np.full(e, None, dtype=object)
-            views = self._view(final_states[ended])
-            for j, i in enumerate(ended):
-                final_obs[i] = views[j]
-            info["final_obs"], info["_final_obs"] = final_obs, mask.copy()
-            info["final_info"], info["_final_info"] = final_info, mask.copy()
+            ended = np.flatnonzero(done)
+            for i, view in zip(ended, self._view(final_states[ended]), strict=True):
+                final_obs[i] = view
+            info["final_obs"], info["_final_obs"] = final_obs, done.copy()
+            info["final_info"], info["_final_info"] = final_info, done.copy()
         return self._view(states), rewards, terminated, truncated, info
 
     def close_extras(self, **kwargs: Any) -> None:
