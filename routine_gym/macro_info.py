@@ -39,7 +39,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["PAD_ACTION", "ROUTINE_INFO_KEYS", "new_step_arrays", "write_routine_info"]
+__all__ = ["PAD_ACTION", "ROUTINE_INFO_KEYS", "new_step_arrays", "padded_actions",
+           "write_routine_info"]
 
 #: The action stored in the padding entries of `info["routine_actions"]`; never a valid action.
 PAD_ACTION = -1
@@ -64,6 +65,20 @@ def new_step_arrays(
     """
     return (np.full(shape, PAD_ACTION, dtype=np.int64), np.zeros(shape, dtype=np.float64),
             np.zeros(shape, dtype=np.bool_), np.zeros(shape, dtype=np.bool_))
+
+
+def padded_actions(sequences: tuple[tuple[int, ...], ...], length: int) -> np.ndarray:
+    """The ``routine_actions`` row of every action run in full: `[len(sequences), length]`,
+    each action's primitive sequence, then `PAD_ACTION`.
+
+    Example:
+        >>> padded_actions(((0,), (1,), (1, 0, 1)), 3).tolist()
+        [[0, -1, -1], [1, -1, -1], [1, 0, 1]]
+    """
+    table = np.full((len(sequences), length), PAD_ACTION, dtype=np.int64)
+    for a, sequence in enumerate(sequences):
+        table[a, : len(sequence)] = sequence
+    return table
 
 
 def write_routine_info(

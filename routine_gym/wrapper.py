@@ -20,7 +20,12 @@ from gymnasium.core import ObsType
 from gymnasium.vector.utils import concatenate, create_empty_array
 
 from routine_gym.library import RoutineLibrary, routine_name
-from routine_gym.macro_info import PAD_ACTION, new_step_arrays, write_routine_info
+from routine_gym.macro_info import (
+    PAD_ACTION,
+    new_step_arrays,
+    padded_actions,
+    write_routine_info,
+)
 
 __all__ = ["RoutineActionWrapper", "merge_final"]
 
@@ -149,11 +154,7 @@ class RoutineActionWrapper(
         self._sequences: tuple[tuple[int, ...], ...] = (
             tuple((a,) for a in range(n)) + routine_tuples
         )
-        self._padded_actions = np.full(
-            (len(self._sequences), self.max_routine_length), PAD_ACTION, dtype=np.int64
-        )
-        for a, sequence in enumerate(self._sequences):
-            self._padded_actions[a, : len(sequence)] = sequence
+        self._padded_actions = padded_actions(self._sequences, self.max_routine_length)
         # Array observations are written straight into a per-step array; structured ones
         # (Dict, Tuple, ...) go through Gymnasium's batching helpers, which cost ~10x more.
         obs_space = env.observation_space

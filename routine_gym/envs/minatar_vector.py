@@ -34,7 +34,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 
-from routine_gym.macro_info import PAD_ACTION
+from routine_gym.macro_info import PAD_ACTION, padded_actions
 
 __all__ = ["MinAtarVectorEnv"]
 
@@ -96,10 +96,7 @@ class MinAtarVectorEnv(VectorEnv):
         # Each action's primitives, as MinAtar's own action numbers.
         action_set = self.games[0].action_set
         self._sequences = tuple(tuple(action_set[a] for a in s) for s in sequences)
-        self._padded_actions = np.full((len(sequences), self.max_routine_length), PAD_ACTION,
-                                       dtype=np.int64)
-        for a, sequence in enumerate(sequences):
-            self._padded_actions[a, : len(sequence)] = sequence
+        self._padded_actions = padded_actions(sequences, self.max_routine_length)
 
         h, w, c = self.games[0].observation_space.shape
         self._state_shape = (h, w, c)
