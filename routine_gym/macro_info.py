@@ -39,8 +39,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["PAD_ACTION", "ROUTINE_INFO_KEYS", "new_step_arrays", "padded_actions",
-           "write_routine_info"]
+__all__ = ["PAD_ACTION", "ROUTINE_INFO_KEYS", "masked_rows", "new_step_arrays",
+           "padded_actions", "write_routine_info"]
 
 #: The action stored in the padding entries of `info["routine_actions"]`; never a valid action.
 PAD_ACTION = -1
@@ -120,3 +120,25 @@ def write_routine_info(
     if observations is not None:
         info["routine_observations"] = observations
     return info
+
+
+def masked_rows(arrays: dict[str, np.ndarray], mask: np.ndarray) -> dict[str, np.ndarray]:
+    """Each array with the rows outside `mask` zeroed, and its `_key` mask: `SyncVectorEnv`'s
+    layout for the keys only some sub-envs reported (the vector envs that build their info
+    themselves, `routine_gym.envs.minatar_vector` and `atari_vector`, use it).
+
+    Example:
+        >>> out = masked_rows({"routine_length": np.array([3, 1])}, np.array([False, True]))
+        >>> out["routine_length"].tolist(), out["_routine_length"].tolist()
+        ([0, 1], [False, True])
+    """
+    out: dict[str, np.ndarray] = {}
+    for key, value in arrays.items():
+        if mask.all():
+            out[key] = value
+        else:
+            masked = np.zeros_like(value)
+            masked[mask] = value[mask]
+            out[key] = masked
+        out[f"_{key}"] = mask.copy()
+    return out

@@ -209,6 +209,19 @@ class AtariProfile(EnvProfile):
         env = ResizeObservation(env, (84, 84))
         return FrameStackObservation(env, self.frame_stack)
 
+    def vector_env(self, env_id: str, num_envs: int, *, routines: Any = None,
+                   record_observations: bool = False, env_kwargs: dict[str, Any] | None = None,
+                   training: bool = True) -> gym.vector.VectorEnv | None:
+        # The training view through ale-py's C++ games (`routine_gym.envs.atari_vector`);
+        # evaluation, and kwargs the C++ games cannot take, keep the Python path.
+        from routine_gym.envs.atari_vector import ALEVectorEnv, unsupported_kwargs
+
+        kwargs = {**self.default_kwargs(env_id), **(env_kwargs or {})}
+        if not training or unsupported_kwargs(env_id, kwargs) is not None:
+            return None
+        return ALEVectorEnv(env_id, num_envs, routines=routines,
+                            record_observations=record_observations, env_kwargs=kwargs)
+
     def recording_stacks(self, env_id: str):
         stacks = super().recording_stacks(env_id)
         # routine-gym 0.1's evaluation stack had no FireOnLifeLoss (the first Qbert demo).

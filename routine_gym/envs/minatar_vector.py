@@ -34,7 +34,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 
-from routine_gym.macro_info import PAD_ACTION, padded_actions
+from routine_gym.macro_info import PAD_ACTION, masked_rows, padded_actions
 
 __all__ = ["MinAtarVectorEnv"]
 
@@ -232,11 +232,11 @@ class MinAtarVectorEnv(VectorEnv):
             # The envs whose episode ended report their step in final_info (the top level is
             # their reset's, which has no routine keys), as SyncVectorEnv arranges it.
             if not done.all():
-                info.update(_masked(routine, ~done))
+                info.update(masked_rows(routine, ~done))
         if episodes:
             final_info: dict[str, Any] = {}
             if routines:
-                final_info.update(_masked(routine, done))
+                final_info.update(masked_rows(routine, done))
             # The envs with an episode end are the done ones, in order.
             episode = {"r": np.zeros(e, dtype=np.float64), "l": np.zeros(e, dtype=np.int64),
                        "t": np.zeros(e, dtype=np.float64)}
@@ -257,17 +257,3 @@ class MinAtarVectorEnv(VectorEnv):
         for game in self.games:
             game.close()
 
-
-def _masked(arrays: dict[str, np.ndarray], mask: np.ndarray) -> dict[str, np.ndarray]:
-    """Each array with the rows outside `mask` zeroed, and its `_key` mask (SyncVectorEnv's
-    layout for keys some envs did not report)."""
-    out: dict[str, np.ndarray] = {}
-    for key, value in arrays.items():
-        if mask.all():
-            out[key] = value
-        else:
-            masked = np.zeros_like(value)
-            masked[mask] = value[mask]
-            out[key] = masked
-        out[f"_{key}"] = mask.copy()
-    return out
