@@ -381,13 +381,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def cmd_experiment_list(args: argparse.Namespace) -> int:
-    from routine_gym.experiments.registry import EXPERIMENTS, count_runs
+    from routine_gym.experiments.registry import EXPERIMENTS, available, count_runs
     from routine_gym.experiments.specs import BUDGETS
 
     print(f"{'experiment':12s} {'figure':8s} " + "  ".join(f"{b:>22s}" for b in BUDGETS))
     for name, experiment in EXPERIMENTS.items():
         cells = []
         for budget in BUDGETS:
+            if not available(name, budget):  # the budget holds other experiments only
+                cells.append("–")
+                continue
             runs, steps = count_runs(name, budget)
             cells.append(f"{runs:>5d} runs {_steps(steps):>11s}")
         print(f"{name:12s} {experiment.figure:8s} " + "  ".join(f"{c:>22s}" for c in cells))
@@ -410,7 +413,7 @@ def cmd_experiment_run(args: argparse.Namespace) -> int:
 
     from routine_gym.experiments.backends import install_signal_handlers
     from routine_gym.experiments.folder_lock import sweep_lock
-    from routine_gym.experiments.registry import EXPERIMENTS
+    from routine_gym.experiments.registry import EXPERIMENTS, available
     from routine_gym.experiments.sweep import check_options, plan, run_experiment
 
     # Every option is checked before the folder is touched; then the folder is held (one sweep
@@ -421,7 +424,9 @@ def cmd_experiment_run(args: argparse.Namespace) -> int:
     failed = 0
     with sweep_lock(args.out, command=shlex.join(["routine-gym", *sys.argv[1:]])):
         for name in EXPERIMENTS:
-            if args.name == "all" and name not in dict(chosen):
+            if args.name == "all" and not available(name, args.budget):
+                print(f"[{name}] skipped: no runs at the {args.budget} budget")
+            elif args.name == "all" and name not in dict(chosen):
                 print(f"[{name}] skipped: none of --envs is one of its games")
         for name, envs in chosen:
             summary = run_experiment(name, args.budget, args.out, jobs=args.jobs,

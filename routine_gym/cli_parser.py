@@ -156,7 +156,8 @@ def _add_experiment(sub: argparse._SubParsersAction) -> dict[str, argparse.Argum
     q = esub.add_parser("run", help="run an experiment (finished runs are skipped, killed ones "
                         "resume)")
     q.add_argument("name", help="imitation, rl, curves, coinrun, scalability, ablation or all")
-    q.add_argument("--budget", required=True, help="smoke, cpu or paper")
+    q.add_argument("--budget", required=True,
+                   help="smoke, cpu, paper or long (`experiment list` describes each)")
     q.add_argument("--out", required=True, help="the sweep folder (the same one to resume)")
     q.add_argument("--jobs", type=int, default=1,
                    help="runs at a time (local), or the local Ray instance's CPUs (1)")

@@ -28,9 +28,9 @@ REPO = Path(__file__).resolve().parents[1]
 
 # -- specs ---------------------------------------------------------------------------------------
 
-def test_the_seven_experiments_and_three_budgets():
+def test_the_seven_experiments_and_four_budgets():
     assert list(EXPERIMENTS) == NAMES
-    assert list(BUDGETS) == ["smoke", "cpu", "paper"]
+    assert list(BUDGETS) == ["smoke", "cpu", "paper", "long"]  # long: rl alone (test_long_budget)
     assert len(specs.PAPER_GAMES) == 30 and "ALE/WizardOfWor-v5" in specs.PAPER_GAMES
 
 

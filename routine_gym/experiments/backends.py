@@ -1,7 +1,8 @@
 """Running one run, and the backends that run a sweep's runs (SPEC §8).
 
 `execute_run` runs (or resumes) one run's script to its end in its folder and writes its
-`result.json`; both backends call it. `local` is a pool of `--jobs` threads each waiting on one
+`result.json` (with its `provenance`: the wall time of all its attempts and their machines);
+both backends call it. `local` is a pool of `--jobs` threads each waiting on one
 run's process on this machine; `ray` is one Ray task per run asking for its CPUs (and a GPU with
 `--cuda`), in a cluster it joins (`--address`) or a local instance it starts and stops. A run's
 process dies with the sweep that started it, and SIGTERM stops a sweep as Ctrl-C does
@@ -27,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from routine_gym.experiments import read_json_object, utc_now
+from routine_gym.experiments.provenance import NOTE_EVERY, Attempts
 from routine_gym.experiments.results import result_problem
 from routine_gym.experiments.run_counters import counter_record
 from routine_gym.experiments.training_curves import (
@@ -149,6 +151,7 @@ def execute_run(config: dict[str, Any], runs_dir: str, cuda: bool = False) -> di
     log = folder / "log.txt"
     words = command(config, runs, cuda=cuda)
     start = time.time()
+    attempts = Attempts(folder, resumed="--resume" in words)
     with open(log, "ab") as out:
         out.write(f"# {utc_now()} {shlex.join(words)}\n".encode())
         out.flush()
@@ -158,7 +161,7 @@ def execute_run(config: dict[str, Any], runs_dir: str, cuda: bool = False) -> di
         with _CHILDREN_LOCK:
             _CHILDREN.add(proc)
         try:
-            code = proc.wait()
+            code = _wait(proc, attempts)
         finally:
             with _CHILDREN_LOCK:
                 _CHILDREN.discard(proc)
@@ -173,7 +176,8 @@ def execute_run(config: dict[str, Any], runs_dir: str, cuda: bool = False) -> di
         curve, counters = _curve_and_counters(run_dir, config)
         result = {"key": config["key"], "run_dir": run_dir.name,
                   "eval": read_json_object(evals[-1]), "evals": extra, "curve": curve,
-                  "seconds": time.time() - start, "finished": utc_now()}
+                  "seconds": time.time() - start, "finished": utc_now(),
+                  "provenance": attempts.record()}
         if counters is not None:
             result["counters"] = counters
     except UsageError as exc:
@@ -183,6 +187,15 @@ def execute_run(config: dict[str, Any], runs_dir: str, cuda: bool = False) -> di
         return {"key": config["key"], "error": f"its evaluation in {run_dir}: {problem}"}
     atomic_write_text(folder / "result.json", json.dumps(result, indent=2) + "\n")
     return result
+
+
+def _wait(proc: subprocess.Popen, attempts: Attempts) -> int:
+    """The exit code of a run's process, noting its wall time every `NOTE_EVERY` seconds."""
+    while True:
+        try:
+            return proc.wait(timeout=NOTE_EVERY)
+        except subprocess.TimeoutExpired:
+            attempts.note()
 
 
 def _kill_children() -> None:

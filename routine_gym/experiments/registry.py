@@ -4,7 +4,8 @@ of the report. Adding an experiment is one file in `routine_gym/experiments/pape
 
 `build(name, budget)` makes an experiment's entries (its runs with their labels) at a budget;
 `left_out`, `games` and `count_runs` say what it leaves out, which games it has and how big it
-is.
+is. A budget may hold only some experiments (`long`: rl alone); `available` says which, and
+building another there is a one-line `UsageError`.
 """
 
 from __future__ import annotations
@@ -27,7 +28,8 @@ from routine_gym.experiments.paper import (
 from routine_gym.experiments.specs import BUDGETS, Builder, Entry
 from routine_gym.plumbing.errors import UsageError
 
-__all__ = ["EXPERIMENTS", "build", "count_runs", "games", "left_out", "register"]
+__all__ = ["EXPERIMENTS", "available", "build", "count_runs", "games", "left_out",
+           "register"]
 
 #: The experiments by name, in the order of `experiment list` and of the report.
 EXPERIMENTS: dict[str, Experiment] = {}
@@ -60,10 +62,28 @@ def build(name: str, budget: str, seeds: Sequence[int] | None = None,
     (`envs` filters the games of every part; CoinRun's experiment has one game).
 
     Raises:
-        UsageError: an unknown experiment or budget, a seed outside the budget's, or an env
-            that is not one of the experiment's games at that budget (`games`).
+        UsageError: an unknown experiment or budget, an experiment the budget has no runs of
+            (`available`), a seed outside the budget's, or an env that is not one of the
+            experiment's games at that budget (`games`).
     """
     return _build(name, budget, seeds, envs)[0]
+
+
+def available(name: str, budget: str) -> bool:
+    """Whether experiment `name` has runs at `budget` (the `long` budget has rl's alone).
+
+    Raises:
+        UsageError: an unknown experiment or budget.
+    """
+    _check(name, budget)
+    return BUDGETS[budget].has(name)
+
+
+def _check(name: str, budget: str) -> None:
+    if name not in EXPERIMENTS:
+        raise UsageError(f"unknown experiment {name!r}; choose from {', '.join(EXPERIMENTS)}")
+    if budget not in BUDGETS:
+        raise UsageError(f"unknown budget {budget!r}; choose from {', '.join(BUDGETS)}")
 
 
 def left_out(name: str, budget: str, envs: Sequence[str] | None = None
@@ -76,10 +96,11 @@ def left_out(name: str, budget: str, envs: Sequence[str] | None = None
 
 def _build(name: str, budget: str, seeds: Sequence[int] | None,
            envs: Sequence[str] | None) -> tuple[list[Entry], list[dict[str, Any]]]:
-    if name not in EXPERIMENTS:
-        raise UsageError(f"unknown experiment {name!r}; choose from {', '.join(EXPERIMENTS)}")
-    if budget not in BUDGETS:
-        raise UsageError(f"unknown budget {budget!r}; choose from {', '.join(BUDGETS)}")
+    if not available(name, budget):
+        holds = [n for n in EXPERIMENTS if BUDGETS[budget].has(n)]
+        raise UsageError(f"the {budget} budget has no runs of the {name} experiment (it holds "
+                         f"{', '.join(holds)} only); run {name} at "
+                         f"{', '.join(b for b in BUDGETS if BUDGETS[b].has(name))}")
     sizes = BUDGETS[budget]
     if envs:
         known = games(name, budget)

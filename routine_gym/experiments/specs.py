@@ -1,4 +1,4 @@
-"""The runs of an experiment and the three budgets they are sized by (SPEC §6, §8).
+"""The runs of an experiment and the budgets they are sized by (SPEC §6, §8).
 
 An experiment (`routine_gym.experiments.experiment.Experiment`) adds its runs to a `Builder` at a
 budget. A run is one process of a script in `algos/` with its flags
@@ -13,6 +13,9 @@ Budgets:
   imitation and RL, CoinRun for its own experiment) at 10^6 agent steps, 3 seeds.
 - `paper`: the paper's settings: 10^7 agent steps, 5 seeds, the authors' 30 Atari games, each
   game's demo from an A2C expert trained first (the shipped demo where there is one).
+- `long`: the rl experiment alone at the paper's 10^7 agent steps on MinAtar's five games,
+  3 seeds, with RAPL-A2C as the authors' code has it beside A2C and RAPL-A2C (about a day on a
+  2-core CPU, so a checkpoint every tenth of a run); the other experiments have no runs there.
 
 Demos: a game with a shipped demo (`routine_gym.demo.DEMO_SUITE`, MiniQbert's scripted one) uses
 it; any other game first trains an A2C expert with `--record-demo` (a run of role `expert`) and
@@ -121,9 +124,22 @@ class Budget:
     num_envs: int | None = None  # None: each script's default (16)
     compile_flags: tuple[tuple[str, Any], ...] = ()  # CompILE's own training, when not default
     ablation_games: tuple[str, ...] | None = None  # None: `games`
+    checkpoints: int = 5  # a run saves a checkpoint every `steps // checkpoints` steps
+    experiments: tuple[str, ...] | None = None  # the experiments with runs here; None: all
+    rl_authors: bool = False  # rl adds RAPL-A2C as the authors' code has it (diagnosis's run)
 
     def checkpoint_every(self, steps: int) -> int:
-        return max(steps // 5, 1)
+        """The `--checkpoint-every` of a run of `steps`: a `checkpoints`-th of it (at least 1).
+
+        Example:
+            >>> BUDGETS["cpu"].checkpoint_every(10**6), BUDGETS["long"].checkpoint_every(10**7)
+            (200000, 1000000)
+        """
+        return max(steps // self.checkpoints, 1)
+
+    def has(self, experiment: str) -> bool:
+        """Whether `experiment` has runs at this budget."""
+        return self.experiments is None or experiment in self.experiments
 
 
 BUDGETS: dict[str, Budget] = {
@@ -154,6 +170,18 @@ BUDGETS: dict[str, Budget] = {
         gail_steps=10_000_000, bc_steps=100_000, expert_steps=10_000_000,
         shipped_expert_steps=10_000_000, eval_episodes=100, scalability_k=(1, 3, 5, 10),
         scalability_lengths=(2, 4, 6, 8)),
+    # The rl experiment's runs of the cpu budget at the paper's steps (the same flags but the
+    # steps and the checkpoint interval); the sizes only other experiments read are the cpu
+    # budget's, so a field read by mistake is a sane one.
+    "long": Budget(
+        name="long",
+        description="the paper's 10^7 agent steps on MinAtar's five games, rl only (with "
+                    "RAPL-A2C as the authors' code), 3 seeds: about a day on a 2-core CPU",
+        seeds=3, games=MINATAR, rl_games=MINATAR, imitation_games=MINATAR,
+        steps=10_000_000, coinrun_steps=500_000, sqil_steps=100_000, gail_steps=500_000,
+        bc_steps=10_000, expert_steps=5_000_000, shipped_expert_steps=5_000_000,
+        eval_episodes=30, scalability_k=(1, 3, 6), scalability_lengths=(2, 5), checkpoints=10,
+        experiments=("rl",), rl_authors=True),
 }
 
 

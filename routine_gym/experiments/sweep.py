@@ -6,8 +6,10 @@ Folder layout of `--out OUT`:
                                      and the settings left out (`left_out`, with why)
     OUT/runs/{key}/config.json       the run's script, flags, needed runs and agent steps
     OUT/runs/{key}/log.txt           the script's output (appended by every attempt)
-    OUT/runs/{key}/result.json       written when the run finished: its eval.json(s) and
-                                     its training curve binned for Fig. 3
+    OUT/runs/{key}/result.json       written when the run finished: its eval.json(s), its
+                                     training curve binned for Fig. 3, what it counted and
+                                     its provenance (wall time, machine: `provenance`)
+    OUT/runs/{key}/attempts.json     each process of the run so far: start, seconds, machine
     OUT/runs/{key}/{script's run}/   the script's own folder: TensorBoard log, checkpoint.pt,
                                      eval.json (and `demo.npz` beside it for an expert)
 
@@ -50,7 +52,7 @@ from typing import Any
 from routine_gym.experiments import os_problem, read_json_object, utc_now
 from routine_gym.experiments.backends import LocalBackend, RayBackend, file_tail
 from routine_gym.experiments.folder_lock import sweep_lock
-from routine_gym.experiments.registry import EXPERIMENTS, build, games, left_out
+from routine_gym.experiments.registry import EXPERIMENTS, available, build, games, left_out
 from routine_gym.experiments.results import result_problem
 from routine_gym.experiments.specs import BUDGETS, Entry, RunSpec
 from routine_gym.plumbing.atomic import atomic_write_text
@@ -228,13 +230,15 @@ def check_options(backend: str = "local", jobs: int = 1, cpus_per_run: int = 1,
 def plan(name: str, budget: str, seeds: Sequence[int] | None = None,
          envs: Sequence[str] | None = None) -> list[tuple[str, list[str] | None]]:
     """The experiments `experiment run NAME` runs, each with the `--envs` it has: NAME alone,
-    or, for `all`, every experiment that has one of `envs` (all of them without `--envs`).
+    or, for `all`, every experiment of the budget that has one of `envs` (all of them without
+    `--envs`).
 
     Raises:
-        UsageError: an unknown experiment or budget; a seed outside the budget; a game that
-            is not one of the experiment's (for `all`: of any experiment's).
+        UsageError: an unknown experiment or budget; an experiment the budget has no runs of; a
+            seed outside the budget; a game that is not one of the experiment's (for `all`: of
+            any experiment's).
     """
-    names = list(EXPERIMENTS) if name == "all" else [name]
+    names = [n for n in EXPERIMENTS if available(n, budget)] if name == "all" else [name]
     if name != "all" or not envs:
         chosen = [(n, list(envs) if envs else None) for n in names]
     else:

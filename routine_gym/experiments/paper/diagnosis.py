@@ -28,7 +28,7 @@ import numpy as np
 from routine_gym.experiments.drawing import COLOURS, figure, game_labels
 from routine_gym.experiments.experiment import Experiment
 from routine_gym.experiments.results import RunRecord
-from routine_gym.experiments.specs import Builder
+from routine_gym.experiments.specs import Builder, Entry
 from routine_gym.experiments.statistics import standard_error
 from routine_gym.experiments.writing import Writer, num, pct, table
 
@@ -52,8 +52,15 @@ def add_runs(b: Builder) -> None:
             b.a2c("A2C", env_id, seed)
             b.a2c("RAPL-A2C", env_id, seed)
             b.a2c("RAPL-A2C", env_id, seed, {"diagnosis": "decisions"}, extra=decisions)
-            b.a2c("RAPL-A2C", env_id, seed, {"diagnosis": "authors"}, extra=[("authors", True)])
+            authors_run(b, env_id, seed)
             b.a2c("MacroAction", env_id, seed, {"diagnosis": "decisions"}, extra=decisions)
+
+
+def authors_run(b: Builder, env_id: str, seed: int) -> Entry:
+    """RAPL-A2C as the authors' code has it (`--authors`) on `env_id` and `seed`: this
+    experiment's run, and the rl experiment's third method at the long budget (one key where
+    both have it). Its variant `{"diagnosis": "authors"}` is what `label` names `AUTHORS`."""
+    return b.a2c("RAPL-A2C", env_id, seed, {"diagnosis": "authors"}, extra=[("authors", True)])
 
 
 def label(run: RunRecord) -> str | None:

@@ -2,6 +2,11 @@
 game.
 
 Error bars: the standard error over seeds of S_R divided by |S_A|.
+
+At the long budget (`rl_authors`) a third method runs beside them: RAPL-A2C as the authors'
+code has it, the diagnosis experiment's run (`diagnosis.authors_run`) under its label
+(`diagnosis.AUTHORS`). It is kept out of Fig. 2's S_R, and has its own table and its place in
+the aggregates.
 """
 
 from __future__ import annotations
@@ -14,6 +19,8 @@ import numpy as np
 
 from routine_gym.experiments.drawing import COLOURS, figure, game_labels
 from routine_gym.experiments.experiment import Experiment
+from routine_gym.experiments.paper import diagnosis
+from routine_gym.experiments.paper.diagnosis import AUTHORS
 from routine_gym.experiments.results import RunRecord
 from routine_gym.experiments.sections import aggregate, aggregate_lines, group_runs, poi_lines
 from routine_gym.experiments.specs import Builder
@@ -37,11 +44,14 @@ class GameBar(NamedTuple):
 
 
 def add_runs(b: Builder) -> None:
-    """A2C and RAPL-A2C on each RL game and seed."""
+    """A2C and RAPL-A2C on each RL game and seed, and RAPL-A2C as the authors' code has it
+    where the budget asks for it (`rl_authors`)."""
     for env_id in b.budget.rl_games:
         for seed in b.seeds():
             b.a2c("A2C", env_id, seed)
             b.a2c("RAPL-A2C", env_id, seed)
+            if b.budget.rl_authors:
+                diagnosis.authors_run(b, env_id, seed)
 
 
 def _relative(rapl: Sequence[float], a2c: Sequence[float]) -> tuple[float, float]:
@@ -60,8 +70,9 @@ def _relative(rapl: Sequence[float], a2c: Sequence[float]) -> tuple[float, float
 
 
 def section(w: Writer, runs: list[RunRecord]) -> list[str]:
-    """Fig. 2: a bar per game, sorted by relative performance; the IQMs and P(RAPL > A2C)."""
-    groups = group_runs(runs, lambda r: r.method)
+    """Fig. 2: a bar per game, sorted by relative performance; the IQMs and P(RAPL > A2C); the
+    authors' code's relative performance per game where it ran."""
+    groups = group_runs(runs, diagnosis.label)  # the authors' code is not RAPL-A2C's S_R
     a2c, rapl = groups.get("A2C", []), groups.get("RAPL-A2C", [])
     games = sorted({r.env_id for r in a2c} & {r.env_id for r in rapl})
     rows: list[GameBar] = []
@@ -93,7 +104,7 @@ def section(w: Writer, runs: list[RunRecord]) -> list[str]:
                  "games")
     w.png(fig, FILE)
 
-    agg = aggregate(w, {m: groups[m] for m in ("A2C", "RAPL-A2C") if m in groups})
+    agg = aggregate(w, {m: groups[m] for m in ("A2C", "RAPL-A2C", AUTHORS) if m in groups})
     table_rows = [(g, n_a, n_r, num(s_a), num(s_r), pct(rel / 100), pct(err / 100))
              for g, n_a, n_r, s_a, s_r, rel, err in rows]
     lines = ["S = mean over seeds of the final evaluation's mean return (raw). Relative "
@@ -107,9 +118,27 @@ def section(w: Writer, runs: list[RunRecord]) -> list[str]:
              *aggregate_lines(w, agg),
              *table(("method", "IQM [95 % CI]"),
                      [(m, interval(agg.iqm.get(m), agg.percent)) for m in agg.iqm])]
-    return lines + poi_lines(w, agg, "RAPL-A2C", ["A2C"])
+    lines += poi_lines(w, agg, "RAPL-A2C", ["A2C"])
+    if AUTHORS in groups:
+        lines += [*_authors_lines(groups[AUTHORS], a2c),
+                  *poi_lines(w, agg, AUTHORS, ["A2C", "RAPL-A2C"])]
+    return lines
+
+
+def _authors_lines(authors: list[RunRecord], a2c: list[RunRecord]) -> list[str]:
+    """The authors' code's S per game and its relative performance over A2C, as Fig. 2's."""
+    rows = []
+    for g in sorted({r.env_id for r in authors} & {r.env_id for r in a2c}):
+        s_a = [r.score for r in a2c if r.env_id == g]
+        s_x = [r.score for r in authors if r.env_id == g]
+        rel, err = _relative(s_x, s_a)
+        rows.append((g, len(s_x), num(float(np.mean(s_a))), num(float(np.mean(s_x))),
+                     pct(rel), pct(err)))
+    return [f"{AUTHORS} (`--authors`, the diagnosis experiment's run) over A2C, as above:", "",
+            *table(("game", "authors' runs", "S_A", "S_authors", "relative", "±"), rows)]
 
 
 EXPERIMENT = Experiment(
     name="rl", version=2, title="RL: relative performance of RAPL-A2C over A2C per game",
-    figure="Fig. 2", file=FILE, add_runs=add_runs, section=section, methods=METHODS)
+    figure="Fig. 2", file=FILE, add_runs=add_runs, section=section, methods=(*METHODS, AUTHORS),
+    colours={AUTHORS: diagnosis.VARIANT_COLOURS[AUTHORS]})
