@@ -42,6 +42,7 @@ import torch.nn as nn
 from torch.distributions.categorical import Categorical
 
 import routine_gym
+from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_primitive_env, make_vector_env
 from routine_gym.networks import ObservationEncoder, layer_init
 from routine_gym.plumbing.arguments import given_flags
@@ -122,6 +123,12 @@ class Args:
     """RMSprop epsilon"""
     async_envs: bool = False
     """step the environments in subprocesses (AsyncVectorEnv) instead of in this process"""
+    update_forward: Literal["auto", "acting", "rollout"] = "auto"
+    """where the update's forward pass comes from: `acting` keeps each acting pass's graph
+    (no second pass: fastest for the large Atari and Procgen CNNs), `rollout` runs the network
+    once more over the whole rollout in one batch (fewer, larger calls: fastest for MinAtar's
+    and the MLP's small networks); auto picks by the env's network. The same numbers up to
+    float rounding"""
 
     # Routines
     demo: str | None = None
@@ -326,6 +333,11 @@ def main(args: Args) -> None:
     final_values = np.zeros((n, e), dtype=np.float64)
     inner_obs = np.zeros((n, max(max_len - 1, 1), e, *obs_shape), dtype=obs_dtype)
     first_n = args.mode == "rapl" and args.prim_states == "first-n"
+    # --update-forward auto: the acting passes' graphs for the large CNNs (a second pass over
+    # the rollout would cost about a fifth of their time), one batched pass for the others.
+    keep_graph = args.update_forward == "acting" or (
+        args.update_forward == "auto"
+        and profile_for(args.env_id).network in ("nature_cnn", "impala_cnn"))
     rollout_obs = np.zeros((n + 1, e, *obs_shape), dtype=obs_dtype)  # + the state after it
     decision_obs = rollout_obs[:n]
 
@@ -352,10 +364,18 @@ def main(args: Args) -> None:
             frac = max(1.0 - spent / args.total_timesteps, 0.0)
             optimizer.param_groups[0]["lr"] = frac * args.learning_rate
 
-        # Acting needs no graph: the update runs the network once over the whole rollout.
+        # Acting keeps its graph for the update (--update-forward acting), or needs none: the
+        # update then runs the network once over the whole rollout.
+        acting_outputs = []
         for step in range(n):
-            with torch.inference_mode():
-                action = agent.act(torch.as_tensor(next_obs, device=device)).cpu().numpy()
+            obs_t = torch.as_tensor(next_obs, device=device)
+            if keep_graph:
+                action_t, logprob, entropy, value = agent.get_action_and_value(obs_t)
+                acting_outputs.append((logprob, entropy, value))
+            else:
+                with torch.inference_mode():
+                    action_t = agent.act(obs_t)
+            action = action_t.cpu().numpy()
             actions[step] = action
             decision_obs[step] = next_obs
             next_obs, reward, term, trunc, info = envs.step(action)
@@ -400,15 +420,21 @@ def main(args: Args) -> None:
                                                        args.gamma)
         else:
             rewards, discounts = macro_reward_and_discount(step_rewards, lengths, args.gamma)
-        # One forward pass over the rollout's n·e decision states and the e states after it,
-        # whose values (detached) bootstrap the returns. Batched, each output is the acting
-        # pass's bit for bit (tests/test_rapl_a2c_update.py).
-        rollout_obs[n] = next_obs
-        logprobs, entropies, all_values = agent.evaluate(
-            torch.as_tensor(rollout_obs.reshape(-1, *obs_shape), device=device),
-            torch.as_tensor(actions.reshape(-1), device=device))
-        values = all_values[: n * e]
-        bootstrap = all_values[n * e:].detach().cpu().numpy()
+        if keep_graph:  # the acting passes' outputs, and the values of the states after
+            logprobs, entropies, values = (torch.cat(x) for x in zip(*acting_outputs, strict=True))
+            with torch.no_grad():
+                bootstrap = agent.get_value(torch.as_tensor(next_obs, device=device))
+            bootstrap = bootstrap.cpu().numpy()
+        else:
+            # One forward pass over the rollout's n·e decision states and the e states after
+            # it, whose values (detached) bootstrap the returns. Batched, each output is the
+            # acting pass's bit for bit (tests/test_rapl_a2c_update.py).
+            rollout_obs[n] = next_obs
+            logprobs, entropies, all_values = agent.evaluate(
+                torch.as_tensor(rollout_obs.reshape(-1, *obs_shape), device=device),
+                torch.as_tensor(actions.reshape(-1), device=device))
+            values = all_values[: n * e]
+            bootstrap = all_values[n * e:].detach().cpu().numpy()
         returns = decision_returns(rewards, discounts, terminated, truncated, final_values,
                                    bootstrap)
         b_returns = torch.as_tensor(returns, dtype=torch.float32, device=device)

@@ -115,6 +115,13 @@ class ObservationEncoder(nn.Module):
         # uint8 images are scaled to [0, 1]; flat observations go in as they are.
         self.scale = 255.0 if np.dtype(obs_dtype) == np.uint8 else 1.0
         self.torso, self.num_features = make_torso(env_id, self.obs_shape)
+        # The Nature CNN's convolutions run a quarter to a third faster on a CPU with the
+        # channels last in memory (measured on 84×84×4 batches of 16 and 80; MinAtar's small
+        # convolution is slower so). The weights are the same numbers, only laid out otherwise.
+        self.memory_format = (torch.channels_last if profile_for(env_id).network == "nature_cnn"
+                              and self.is_image else torch.contiguous_format)
+        if self.memory_format is torch.channels_last:
+            self.torso.to(memory_format=torch.channels_last)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         x = obs.float()
@@ -125,4 +132,6 @@ class ObservationEncoder(nn.Module):
                 x = x.unsqueeze(1)
             elif self.channels_last:
                 x = x.permute(0, 3, 1, 2)
+            if self.memory_format is torch.channels_last:
+                x = x.contiguous(memory_format=torch.channels_last)
         return self.torso(x)

@@ -371,3 +371,22 @@ def test_save_model_writes_a_loadable_state_dict(rapl_a2c, tmp_path):
                  save_model=True)
     state = torch.load(folder / "model.pt", weights_only=True)
     assert state["actor.weight"].shape[0] == 6  # MiniQbert's 6 actions, no routines
+
+
+@pytest.mark.parametrize("mode", ["a2c", "rapl"])
+def test_both_update_forwards_give_the_same_first_update(rapl_a2c, tmp_path, mode):
+    # The first rollout draws the same actions either way (acting samples the same); its
+    # update's losses come from the acting graphs or from one batched pass over the rollout,
+    # the same numbers (the network applied to each state alone). Later updates differ by
+    # float rounding of the gradient only (tests/test_rapl_a2c_update.py).
+    first = {}
+    for forward in ("acting", "rollout"):
+        folder = run(rapl_a2c, tmp_path / forward, env_id="MinAtar/Breakout-v1", mode=mode,
+                     seed=3, num_envs=4, total_timesteps=40, update_forward=forward)
+        values = scalars(folder)
+        first[forward] = {tag: values[tag][0] for tag in ("losses/value_loss",
+                                                          "losses/policy_loss",
+                                                          "losses/entropy",
+                                                          "losses/prim_value_loss")}
+    assert first["acting"] == pytest.approx(first["rollout"], rel=1e-6, abs=1e-7)
+    assert first["acting"]["losses/value_loss"] > 0
