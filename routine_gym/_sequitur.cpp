@@ -24,6 +24,7 @@
 #include <cstdint>
 #include <cstring>
 #include <new>
+#include <utility>
 #include <vector>
 
 namespace {
@@ -407,12 +408,143 @@ PyObject* induce(PyObject* /*module*/, PyObject* arg) {
   return Py_BuildValue("(NN)", off, cod);
 }
 
+// Reads a bytes-like argument of native int64 into a vector (copied: bytes need not be aligned).
+bool read_int64s(PyObject* arg, std::vector<int64_t>& out) {
+  Py_buffer view;
+  if (PyObject_GetBuffer(arg, &view, PyBUF_C_CONTIGUOUS) != 0) return false;
+  if (view.len % 8 != 0) {
+    PyErr_Format(PyExc_ValueError, "expected a buffer of native int64, got %zd bytes", view.len);
+    PyBuffer_Release(&view);
+    return false;
+  }
+  out.resize(static_cast<size_t>(view.len / 8));
+  if (view.len > 0) std::memcpy(out.data(), view.buf, static_cast<size_t>(view.len));
+  PyBuffer_Release(&view);
+  return true;
+}
+
+// `Grammar.expansion_lengths` and `Grammar.expansions(max_length)` of the reference, on the
+// flat rules `induce` returns: each rule's length, and the expansions of rules 1.. of at most
+// `max_length` actions (all when it is negative), end to end in rule order. A rule of at most
+// `max_length` actions has only rules at most as long below it, so each is expanded by a walk
+// of its own tree, without memo.
+PyObject* expansions(PyObject* /*module*/, PyObject* args) {
+  PyObject* offsets_arg;
+  PyObject* codes_arg;
+  long long max_action, max_length;
+  if (!PyArg_ParseTuple(args, "OOLL", &offsets_arg, &codes_arg, &max_action, &max_length)) {
+    return nullptr;
+  }
+  std::vector<int64_t> offsets, codes;
+  if (!read_int64s(offsets_arg, offsets) || !read_int64s(codes_arg, codes)) return nullptr;
+  const size_t num_rules = offsets.empty() ? 0 : offsets.size() - 1;
+  for (size_t i = 0; i < num_rules; ++i) {
+    if (offsets[i] < 0 || offsets[i] > offsets[i + 1] ||
+        offsets[i + 1] > static_cast<int64_t>(codes.size())) {
+      PyErr_SetString(PyExc_ValueError, "rule offsets out of order or out of range");
+      return nullptr;
+    }
+  }
+  for (const int64_t c : codes) {
+    if (c < 0 || ((c & 1) && static_cast<size_t>(c >> 1) >= num_rules)) {
+      PyErr_SetString(PyExc_ValueError, "a code is negative or refers to no rule");
+      return nullptr;
+    }
+  }
+
+  std::vector<int64_t> lengths(num_rules, -1), out;
+  bool cyclic = false, out_of_memory = false;
+  Py_BEGIN_ALLOW_THREADS
+  try {
+    // Lengths by an iterative post-order walk (grammars can be 2^20 rules deep); a rule is
+    // marked -2 while its children are pending, which also catches a cycle.
+    std::vector<size_t> stack;
+    for (size_t root = 0; root < num_rules && !cyclic; ++root) {
+      if (lengths[root] >= 0) continue;
+      stack.push_back(root);
+      while (!stack.empty() && !cyclic) {
+        const size_t r = stack.back();
+        if (lengths[r] >= 0) {
+          stack.pop_back();
+          continue;
+        }
+        bool pending = false;
+        int64_t total = 0;
+        for (int64_t i = offsets[r]; i < offsets[r + 1]; ++i) {
+          const int64_t c = codes[i];
+          if (!(c & 1)) {
+            total += (c >> 1) <= max_action ? 1 : 0;  // an episode separator counts 0
+          } else if (lengths[c >> 1] >= 0) {
+            total += lengths[c >> 1];
+          } else if (lengths[c >> 1] == -2) {
+            cyclic = true;
+            break;
+          } else {
+            stack.push_back(static_cast<size_t>(c >> 1));
+            pending = true;
+          }
+        }
+        if (cyclic) break;
+        if (pending) {
+          lengths[r] = -2;  // visited; children first
+          continue;
+        }
+        lengths[r] = total;
+        stack.pop_back();
+      }
+      // A rule marked -2 and popped back with all children known is finished above; the
+      // marks only stay on a cycle.
+    }
+    if (!cyclic) {
+      std::vector<std::pair<int64_t, int64_t>> walk;  // (rule, next code index)
+      for (size_t r = 1; r < num_rules; ++r) {
+        if (max_length >= 0 && lengths[r] > max_length) continue;
+        walk.emplace_back(static_cast<int64_t>(r), offsets[r]);
+        while (!walk.empty()) {
+          auto& [rule, i] = walk.back();
+          if (i == offsets[rule + 1]) {
+            walk.pop_back();
+            continue;
+          }
+          const int64_t c = codes[i++];
+          if (c & 1) {
+            walk.emplace_back(c >> 1, offsets[(c >> 1)]);
+          } else {
+            out.push_back(c >> 1);
+          }
+        }
+      }
+    }
+  } catch (const std::bad_alloc&) {
+    out_of_memory = true;
+  }
+  Py_END_ALLOW_THREADS
+  if (out_of_memory) return PyErr_NoMemory();
+  if (cyclic) {
+    PyErr_SetString(PyExc_ValueError, "the rules refer to each other in a cycle");
+    return nullptr;
+  }
+  PyObject* len = bytes_of(lengths);
+  if (len == nullptr) return nullptr;
+  PyObject* exp = bytes_of(out);
+  if (exp == nullptr) {
+    Py_DECREF(len);
+    return nullptr;
+  }
+  return Py_BuildValue("(NN)", len, exp);
+}
+
 PyMethodDef methods[] = {
     {"induce", induce, METH_O,
      "induce(encoded) -> (offsets, codes)\n\n"
      "Sequitur on an encoded symbol buffer (native int64; terminal a as 2a). Returns two bytes\n"
      "objects of native int64: rule body offsets and the bodies, rules numbered in order of\n"
      "first appearance and references to rule k encoded as 2k + 1."},
+    {"expansions", expansions, METH_VARARGS,
+     "expansions(offsets, codes, max_action, max_length) -> (lengths, flat)\n\n"
+     "On `induce`'s output: each rule's length in actions (episode separators, terminals\n"
+     "above max_action, count 0), and the actions of every rule 1.. of at most max_length\n"
+     "actions (every rule when max_length < 0), end to end in rule order; native int64 bytes."},
     {nullptr, nullptr, 0, nullptr},
 };
 

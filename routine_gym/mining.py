@@ -226,12 +226,12 @@ class _Selector:
         2^19 actions are not.
         """
         exact_below = self.index.max_gram  # upper_bound is exact up to this length
-        heap: list[tuple[tuple[float, int, Routine], int, int]] = []
-        for routine in candidates:
-            if self.near_primitive(routine):
-                continue
-            bound = self.index.upper_bound(routine)
-            heap.append((_sort_key(bound + self.length_weight * len(routine), routine), 0, 0))
+        kept = [routine for routine in candidates if not self.near_primitive(routine)]
+        bounds = self.index.upper_bounds(kept).tolist()
+        heap: list[tuple[tuple[float, int, Routine], int, int]] = [
+            (_sort_key(bound + self.length_weight * len(routine), routine), 0, 0)
+            for routine, bound in zip(kept, bounds, strict=True)
+        ]
         heapq.heapify(heap)
         accepted: list[tuple[Routine, float, int]] = []
         while heap and len(accepted) < k:
@@ -286,8 +286,8 @@ class _Selector:
         `f / mean f` do.
         """
         counted = [
-            (routine, self.index.count(routine) - self._ends_the_input(routine))
-            for routine in candidates
+            (routine, f - self._ends_the_input(routine))
+            for routine, f in zip(candidates, self.index.counts(candidates), strict=True)
         ]
         if not counted:
             return []

@@ -16,6 +16,7 @@ Example:
 from __future__ import annotations
 
 from collections.abc import Sequence
+from itertools import chain
 
 import numpy as np
 
@@ -27,12 +28,14 @@ __all__ = ["OccurrenceIndex"]
 class OccurrenceIndex:
     """Counts and locates every (overlapping) occurrence of a routine in a set of episodes.
 
-    Every window of q ≤ Q consecutive actions inside an episode gets an integer code, so a
-    routine of up to Q actions is counted by one dictionary look-up. A longer routine is
-    bounded from above by the count of its rarest Q-gram (an occurrence of ρ contains one of
-    each of its Q-grams) and by the number of windows of its length, and located by filtering
-    the positions of that Q-gram. The miner uses the bound to count exactly only the
-    candidates that can still make the library.
+    Every window of q ≤ Q consecutive actions inside an episode gets an integer code, and the
+    codes are counted once (a table by code when the alphabet is small, else the sorted codes
+    that occur), so a routine of up to Q actions is counted by one look-up, and the miner's
+    ~10^4 candidates all at once (`upper_bounds`). A longer routine is bounded from above by
+    the count of its rarest Q-gram (an occurrence of ρ contains one of each of its Q-grams) and
+    by the number of windows of its length, and located by filtering the positions of that
+    Q-gram. The miner uses the bound to count exactly only the candidates that can still make
+    the library.
 
     Filtering action by action costs (positions) × (length): on a million copies of one
     action, 10^6 × 2^19 for the grammar's longest rule. When that would exceed a few passes
@@ -56,8 +59,7 @@ class OccurrenceIndex:
         self._sorted_lengths = np.sort(lengths)
         self._length_tail = np.concatenate([np.cumsum(self._sorted_lengths[::-1])[::-1], [0]])
         # Dense ids keep the window codes small whatever the action ids are.
-        self.alphabet, dense = np.unique(raw, return_inverse=True)
-        self._dense = dense.astype(np.int64)
+        self.alphabet, self._dense = _dense_actions(raw)
         self._dense_id = {int(a): i for i, a in enumerate(self.alphabet.tolist())}
         base = max(int(self.alphabet.size), 1)
         self._base = base
@@ -65,15 +67,10 @@ class OccurrenceIndex:
         while self.max_gram < max_gram and base ** (self.max_gram + 1) < 2**62:
             self.max_gram += 1
         self._codes: dict[int, np.ndarray] = {}
-        self._counts: dict[int, dict[int, int]] = {}
-        q = self.max_gram
-        codes = self.window_codes(q)
-        valid = np.flatnonzero(codes >= 0)
-        self._positions = valid[np.argsort(codes[valid], kind="stable")]
-        self._keys, self._starts, counts = np.unique(
-            codes[self._positions], return_index=True, return_counts=True
-        )
-        self._ends = self._starts + counts
+        self._counts: dict[int, tuple[np.ndarray | None, np.ndarray]] = {}
+        # The Q-grams' positions sorted by code (`_sorted_grams`), built when a routine longer
+        # than Q is first located: scoring alone never needs them.
+        self._sorted: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         # Block ids by prefix doubling, built on demand: level k ids the 2^k-blocks.
         self._block_ids: list[np.ndarray] = [self._dense]
         self._block_keys: list[np.ndarray] = [np.arange(base, dtype=np.int64)]
@@ -93,12 +90,30 @@ class OccurrenceIndex:
             self._codes[q] = codes
         return self._codes[q]
 
-    def _gram_counts(self, q: int) -> dict[int, int]:
+    def _gram_counts(self, q: int) -> tuple[np.ndarray | None, np.ndarray]:
+        """How often each q-gram occurs inside an episode, by window code: `(None, counts)`
+        indexed by code when there are few possible codes (one counting pass), else
+        `(keys, counts)` with the codes that occur, ascending (a sort)."""
         if q not in self._counts:
             codes = self.window_codes(q)
-            keys, counts = np.unique(codes[codes >= 0], return_counts=True)
-            self._counts[q] = dict(zip(keys.tolist(), counts.tolist(), strict=True))
+            codes = codes[codes >= 0]
+            possible = self._base**q
+            if possible <= max(2 * codes.size, 2**16):
+                self._counts[q] = (None, np.bincount(codes, minlength=possible))
+            else:
+                self._counts[q] = np.unique(codes, return_counts=True)
         return self._counts[q]
+
+    def _count_codes(self, q: int, codes: np.ndarray) -> np.ndarray:
+        """The count of each q-gram code in `codes` (0 for a code that never occurs or is
+        -1, a gram with an action absent from the episodes)."""
+        keys, counts = self._gram_counts(q)
+        if keys is None:
+            return np.where(codes >= 0, counts[np.maximum(codes, 0)], 0)
+        if keys.size == 0:
+            return np.zeros(codes.size, dtype=np.int64)
+        i = np.minimum(np.searchsorted(keys, codes), keys.size - 1)
+        return np.where(keys[i] == codes, counts[i], 0)
 
     def _encode(self, gram: Sequence[int]) -> int | None:
         """Window code of `gram`, or None when one of its actions never occurs."""
@@ -129,31 +144,79 @@ class OccurrenceIndex:
         codes = np.zeros(m, dtype=np.int64)
         for j in range(q):
             codes = codes * self._base + dense[j : j + m]
-        i = np.minimum(np.searchsorted(self._keys, codes), max(self._keys.size - 1, 0))
-        if self._keys.size == 0 or not np.array_equal(self._keys[i], codes):
+        _, keys, starts, ends = self._sorted_grams()
+        i = np.minimum(np.searchsorted(keys, codes), max(keys.size - 1, 0))
+        if keys.size == 0 or not np.array_equal(keys[i], codes):
             return None
-        return self._starts[i], self._ends[i]
+        return starts[i], ends[i]
+
+    def _sorted_grams(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The start of every Q-gram inside an episode, sorted by code (stably: ascending
+        within a code), with the codes that occur and each one's slice of the starts."""
+        if self._sorted is None:
+            codes = self.window_codes(self.max_gram)
+            valid = np.flatnonzero(codes >= 0)
+            positions = valid[_stable_argsort(codes[valid], self._base**self.max_gram)]
+            keys, starts, counts = np.unique(
+                codes[positions], return_index=True, return_counts=True
+            )
+            self._sorted = (positions, keys, starts, starts + counts)
+        return self._sorted
 
     def num_windows(self, length: int) -> int:
         """How many windows of `length` actions lie inside an episode: a bound of any count."""
-        i = int(np.searchsorted(self._sorted_lengths, length))
-        return int(self._length_tail[i]) - (self._sorted_lengths.size - i) * (length - 1)
+        return int(self._num_windows(np.array([length], dtype=np.int64))[0])
+
+    def _num_windows(self, lengths: np.ndarray) -> np.ndarray:
+        """`num_windows` of each of `lengths`."""
+        i = np.searchsorted(self._sorted_lengths, lengths)
+        return self._length_tail[i] - (self._sorted_lengths.size - i) * (lengths - 1)
 
     def upper_bound(self, routine: Sequence[int]) -> int:
         """A cheap upper bound of `count(routine)`; exact for routines of ≤ max_gram actions."""
-        n = len(routine)
-        q = min(n, self.max_gram)
-        bound = self.num_windows(n)
-        if n - q + 1 > 16:
-            spans = self._gram_spans(routine)
-            return 0 if spans is None else min(bound, int((spans[1] - spans[0]).min()))
-        counts = self._gram_counts(q)
-        for j in range(n - q + 1):
-            code = self._encode(routine[j : j + q])
-            bound = min(bound, 0 if code is None else counts.get(code, 0))
-            if bound == 0:
-                break
-        return bound
+        return int(self.upper_bounds([routine])[0])
+
+    def upper_bounds(self, routines: Sequence[Sequence[int]]) -> np.ndarray:
+        """`upper_bound` of each (non-empty) routine, all in a few vectorised passes: the
+        miner bounds every candidate of a demo at once (~10^4 for a million actions).
+
+        The bound of a routine of n actions is the smallest of the number of windows of n
+        actions and the counts of its q-grams, q = min(n, Q): with n ≤ Q its own count.
+        """
+        lengths = np.fromiter(map(len, routines), dtype=np.int64, count=len(routines))
+        bounds = self._num_windows(lengths)
+        grams = np.minimum(lengths, self.max_gram)
+        for q in np.unique(grams).tolist():
+            group = np.flatnonzero(grams == q)
+            members = [routines[i] for i in group.tolist()]
+            bounds[group] = np.minimum(bounds[group], self._rarest_gram_counts(members, q))
+        return bounds
+
+    def _rarest_gram_counts(self, routines: Sequence[Sequence[int]], q: int) -> np.ndarray:
+        """For routines of ≥ q actions each, the smallest count of any of their q-grams."""
+        lengths = np.fromiter(map(len, routines), dtype=np.int64, count=len(routines))
+        flat = np.fromiter(chain.from_iterable(routines), dtype=np.int64, count=int(lengths.sum()))
+        dense = self._dense_or_absent(flat)
+        # The routines lie end to end: the q-gram at p is a gram of its routine when it ends
+        # inside it, and has a code when every action of it occurs in the episodes.
+        m = flat.size - q + 1
+        codes = np.zeros(m, dtype=np.int64)
+        present = np.ones(m, dtype=bool)
+        for j in range(q):
+            codes = codes * self._base + np.maximum(dense[j : j + m], 0)
+            present &= dense[j : j + m] >= 0
+        ends = np.cumsum(lengths)
+        inside = np.arange(m) + q <= np.repeat(ends, lengths)[:m]
+        counts = np.full(flat.size, np.iinfo(np.int64).max, dtype=np.int64)
+        counts[:m][inside] = self._count_codes(q, np.where(present, codes, -1)[inside])
+        return np.minimum.reduceat(counts, ends - lengths)
+
+    def _dense_or_absent(self, actions: np.ndarray) -> np.ndarray:
+        """The dense id of each action, -1 for an action the episodes never hold."""
+        if self.alphabet.size == 0:
+            return np.full(actions.size, -1, dtype=np.int64)
+        i = np.minimum(np.searchsorted(self.alphabet, actions), self.alphabet.size - 1)
+        return np.where(self.alphabet[i] == actions, i, -1)
 
     def _block_level(self, k: int) -> np.ndarray:
         """Ids of the 2^k-blocks (-1 where a block leaves its episode), built by doubling."""
@@ -192,7 +255,7 @@ class OccurrenceIndex:
         if spans is None:
             return 0, np.zeros(0, dtype=np.int64)
         best = int(np.argmin(spans[1] - spans[0]))
-        p = self._positions[spans[0][best] : spans[1][best]] - best
+        p = self._sorted_grams()[0][spans[0][best] : spans[1][best]] - best
         p = p[(p >= 0) & (p + n <= self.seq.size)]
         return best, p[self.episode_of[p] == self.episode_of[p + n - 1]]
 
@@ -246,6 +309,13 @@ class OccurrenceIndex:
             return self.upper_bound(routine)
         return int(self.positions(routine).size)
 
+    def counts(self, routines: Sequence[Sequence[int]]) -> list[int]:
+        """`count` of each routine; those of ≤ max_gram actions in one vectorised pass."""
+        short = [i for i, r in enumerate(routines) if len(r) <= self.max_gram]
+        exact = self.upper_bounds([routines[i] for i in short]).tolist()
+        out = dict(zip(short, exact, strict=True))
+        return [out[i] if i in out else self.count(r) for i, r in enumerate(routines)]
+
     def occurrence_array(self, routine: Sequence[int]) -> np.ndarray:
         """Every occurrence as a row `(episode, start within the episode)`: shape (f, 2)."""
         p = self.positions(routine)
@@ -271,6 +341,25 @@ class OccurrenceIndex:
         _, index = np.unique(first[starts] * size + last[starts], return_index=True)
         seq = self.seq.tolist()
         return [tuple(seq[s : s + length]) for s in np.sort(starts[index]).tolist()]
+
+
+def _dense_actions(actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`np.unique(actions, return_inverse=True)`: the actions present, ascending, and each
+    action's index among them; by counting when the action ids are small (a million actions
+    of a few ids: one pass instead of a sort)."""
+    if actions.size and actions.min() >= 0 and actions.max() < max(2 * actions.size, 2**16):
+        present = np.bincount(actions) > 0
+        return np.flatnonzero(present), (np.cumsum(present) - 1)[actions]
+    alphabet, dense = np.unique(actions, return_inverse=True)
+    return alphabet, dense.astype(np.int64)
+
+
+def _stable_argsort(keys: np.ndarray, bound: int) -> np.ndarray:
+    """`np.argsort(keys, kind="stable")` of non-negative keys below `bound`: numpy radix-sorts
+    16-bit keys (one pass, where the merge sort of int64 keys compares n log n times)."""
+    if bound <= 2**16:
+        keys = keys.astype(np.uint16)
+    return np.argsort(keys, kind="stable")
 
 
 def _dense_ids(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -19,7 +19,9 @@ a rule can never be confused with an action: terminal `a` is stored as `2a`, a r
 `r` as `2r + 1`, and a rule's guard node as `-1`. The compiled module `routine_gym._sequitur`
 (built from `routine_gym/_sequitur.cpp` by `pip install`) ports it function for function, with
 an explicit stack instead of recursion, and gives the same grammar about 14 times faster (a
-million actions in about 0.4 s instead of 5.5 s); `induce` uses it when it is built.
+million actions in about 0.4 s instead of 5.5 s); `induce` uses it when it is built. The core
+also expands the rules (`Grammar.expansions`, the miner's candidates) from its flat output, so
+a grammar built by it decodes its rule bodies into Python objects only when they are read.
 
 Example:
     >>> from routine_gym.sequitur import induce
@@ -83,12 +85,40 @@ class Grammar:
     """
 
     def __init__(self, rules: list[tuple[Symbol | None, ...]], num_episodes: int) -> None:
-        self.rules = rules
+        self._rules: list[tuple[Symbol | None, ...]] | None = rules
         self.num_episodes = num_episodes
         self._expansions: dict[int, tuple[int, ...]] = {}
         self._lengths: list[int] | None = None
+        # `induce`'s flat rules (offsets, codes, max_action) and the compiled core that reads
+        # them; None for a grammar built from rule bodies or by the Python backend.
+        self._flat: tuple[np.ndarray, np.ndarray, int] | None = None
+        self._core: ModuleType | None = None
+
+    @classmethod
+    def _from_flat(
+        cls, offsets: np.ndarray, codes: np.ndarray, max_action: int, num_episodes: int,
+        core: ModuleType | None,
+    ) -> Grammar:
+        """The grammar of flat `(offsets, codes)` (see `_collect`), its rule bodies decoded
+        on first use: the miner only wants the expansions, which the core reads from the
+        flat form (decoding a million-action grammar's bodies costs more than its rules)."""
+        grammar = cls([], num_episodes)
+        grammar._rules = None  # decoded from `_flat` when first read
+        grammar._flat = (offsets, codes, max_action)
+        grammar._core = core
+        return grammar
+
+    @property
+    def rules(self) -> list[tuple[Symbol | None, ...]]:
+        """The rule bodies (see the class docstring)."""
+        if self._rules is None:
+            assert self._flat is not None
+            self._rules = _decode(*self._flat)
+        return self._rules
 
     def __len__(self) -> int:
+        if self._rules is None and self._flat is not None:
+            return self._flat[0].size - 1
         return len(self.rules)
 
     def __str__(self) -> str:
@@ -102,6 +132,8 @@ class Grammar:
     def expansion_lengths(self) -> list[int]:
         """How many actions each rule expands to (rule 0: the whole input, separators
         excluded), computed from the rule bodies without expanding anything."""
+        if self._lengths is None and self._core is not None:
+            self._core_expansions(0)  # sets the lengths; no rule is 0 actions long
         if self._lengths is None:
             lengths = [-1] * len(self.rules)
             for root in range(len(self.rules)):
@@ -162,12 +194,31 @@ class Grammar:
         expanded (their lengths come from `expansion_lengths`): the rules of `a` * 2**20
         expand to 2, 4, ..., 2**19 actions, of which a miner bounded at 64 wants five.
         """
+        if self._core is not None:
+            return self._core_expansions(-1 if max_length is None else max_length)
         if max_length is None:
             return [self._expansion(r) for r in range(1, len(self.rules))]
         lengths = self.expansion_lengths()
         return [
             self._expansion(r) for r in range(1, len(self.rules)) if lengths[r] <= max_length
         ]
+
+    def _core_expansions(self, max_length: int) -> list[tuple[int, ...]]:
+        """`expansions(max_length)` by the compiled core (every rule when `max_length` < 0);
+        it gives `expansion_lengths` on the way."""
+        assert self._flat is not None and self._core is not None
+        offsets, codes, max_action = self._flat
+        raw_lengths, raw_actions = self._core.expansions(offsets, codes, max_action, max_length)
+        lengths = np.frombuffer(raw_lengths, dtype=np.int64).tolist()
+        self._lengths = lengths
+        actions = np.frombuffer(raw_actions, dtype=np.int64).tolist()
+        out = []
+        end = 0
+        for n in lengths[1:]:
+            if max_length < 0 or n <= max_length:
+                start, end = end, end + n
+                out.append(tuple(actions[start:end]))
+        return out
 
     def rule_uses(self) -> list[int]:
         """How many times each rule is referenced in the grammar (rule 0: 0)."""
@@ -244,11 +295,11 @@ def induce(
     encoded, max_action = _encode(episodes)
     if core is None:
         offsets, codes = _induce_python(encoded)
-    else:
-        raw_offsets, raw_codes = core.induce(encoded)
-        offsets = np.frombuffer(raw_offsets, dtype=np.int64)
-        codes = np.frombuffer(raw_codes, dtype=np.int64)
-    return _decode(offsets, codes, max_action, len(episodes))
+        return Grammar(_decode(offsets, codes, max_action), len(episodes))
+    raw_offsets, raw_codes = core.induce(encoded)
+    offsets = np.frombuffer(raw_offsets, dtype=np.int64)
+    codes = np.frombuffer(raw_codes, dtype=np.int64)
+    return Grammar._from_flat(offsets, codes, max_action, len(episodes), core)
 
 
 _warned_fallback = False
@@ -489,9 +540,8 @@ def _decode(
     offsets: Sequence[int] | np.ndarray,
     codes: Sequence[int] | np.ndarray,
     max_action: int,
-    num_episodes: int,
-) -> Grammar:
-    """Turn flat `(offsets, codes)` into a `Grammar` (actions, `RuleRef`s, `None` separators)."""
+) -> list[tuple[Symbol | None, ...]]:
+    """Turn flat `(offsets, codes)` into rule bodies (actions, `RuleRef`s, `None` separators)."""
     codes = np.asarray(codes, dtype=np.int64)
     offsets = np.asarray(offsets, dtype=np.int64)
     # Vectorised: a million-action grammar has ~10^5 codes, too many for a per-code Python branch.
@@ -503,5 +553,4 @@ def _decode(
     symbols[is_rule] = refs[decoded[is_rule]]
     symbols[~is_rule & (decoded > max_action)] = None
     flat = symbols.tolist()
-    rules = [tuple(flat[a:b]) for a, b in pairwise(offsets.tolist())]
-    return Grammar(rules, num_episodes)
+    return [tuple(flat[a:b]) for a, b in pairwise(offsets.tolist())]

@@ -161,6 +161,35 @@ def test_occurrence_index_matches_brute_force(case, max_gram):
     assert list(index.occurrences(routine)) == expected
 
 
+def brute_bound(episodes, routine, max_gram) -> int:
+    """`upper_bound`'s definition: the fewest of the windows of |ρ| actions and of the
+    occurrences of each of ρ's q-grams, q = min(|ρ|, Q)."""
+    n = len(routine)
+    q = min(n, max_gram)
+    windows = sum(max(len(e) - n + 1, 0) for e in episodes)
+    grams = [routine[j : j + q] for j in range(n - q + 1)]
+    return min([windows] + [len(brute_occurrences(episodes, g)) for g in grams])
+
+
+@settings(max_examples=100, deadline=None)
+@given(cases=st.lists(episodes_and_routine(), min_size=1, max_size=6),
+       max_gram=st.sampled_from([1, 2, 3, 4]))
+def test_bounds_and_counts_of_many_routines_at_once_match_brute_force(cases, max_gram):
+    """The miner bounds and counts its candidates in one batch: routines of every length,
+    absent actions included, against each one's bound and count worked out alone."""
+    episodes = cases[0][0]
+    routines = [routine for _, routine in cases]
+    index = OccurrenceIndex(episodes, max_gram=max_gram)
+    assert index.upper_bounds(routines).tolist() == [
+        brute_bound(episodes, r, index.max_gram) for r in routines
+    ]
+    assert index.counts(routines) == [len(brute_occurrences(episodes, r)) for r in routines]
+
+
+def test_bounds_of_no_routines_are_empty():
+    assert OccurrenceIndex([[0, 1, 0]]).upper_bounds([]).tolist() == []
+
+
 def test_large_alphabet_lowers_the_gram_size_but_not_the_counts():
     """65,536 distinct actions: 4-gram codes would overflow int64, so Q drops to 3."""
     rng = np.random.default_rng(0)

@@ -78,6 +78,46 @@ def test_backends_agree_on_random_multi_episode_inputs():
         assert grammar.rules[0].count(None) == len(episodes) - 1
 
 
+def assert_core_expansions_are_the_reference_walk(actions) -> None:
+    """The core's rule lengths and bounded expansions (what the miner reads) equal the Python
+    walk over the same grammar's rule bodies."""
+    compiled = induce(actions, backend="c")
+    walked = Grammar(compiled.rules, compiled.num_episodes)  # the Python walk
+    for max_length in (None, 2, 3, 7, 64):
+        assert induce(actions, backend="c").expansions(max_length) == walked.expansions(
+            max_length
+        ), (actions, max_length)
+    assert compiled.expansion_lengths() == walked.expansion_lengths()
+
+
+def test_core_expansions_equal_the_python_walk_on_random_inputs():
+    rng = np.random.default_rng(5)
+    for _ in range(300):
+        alphabet = int(rng.integers(1, 7))
+        episodes = [
+            rng.integers(0, alphabet, size=int(rng.integers(0, 150))).tolist()
+            for _ in range(int(rng.integers(1, 4)))
+        ]
+        assert_core_expansions_are_the_reference_walk(episodes)
+
+
+@pytest.mark.parametrize(
+    "actions", [[], [5], [[], []], [0] * 2**12, [0, 1] * 3000, [[2**30 - 1, 0] * 5, [1] * 9]]
+)
+def test_core_expansions_equal_the_python_walk_on_edge_cases(actions):
+    assert_core_expansions_are_the_reference_walk(actions)
+
+
+def test_core_expansions_reject_rules_that_are_not_a_grammar():
+    """The core reads flat rules from Python: a reference past the last rule or a cycle of
+    references is refused, not followed."""
+    offsets = np.array([0, 1, 2], dtype=np.int64).tobytes()
+    with pytest.raises(ValueError, match="refers to no rule"):
+        core.expansions(offsets, np.array([5, 0], dtype=np.int64).tobytes(), 0, -1)
+    with pytest.raises(ValueError, match="cycle"):
+        core.expansions(offsets, np.array([3, 3], dtype=np.int64).tobytes(), 0, -1)
+
+
 @pytest.mark.parametrize(
     ("actions", "expected"),
     [([], [()]), ([5], [(5,)]), ([[], []], [(None,)]), ([[0], [0], [0]], [(0, None, 0, None, 0)])],
