@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import copy
 import doctest
 import json
+import pickle
 import warnings
 
 import gymnasium as gym
@@ -201,6 +203,25 @@ def test_info_arrays_are_new_on_every_step():
     assert_info(
         info, routine_actions=np.array([0, -1]), routine_terminated=np.array([False, False])
     )
+
+
+@pytest.mark.parametrize(
+    "clone",
+    [copy.deepcopy, lambda env: pickle.loads(pickle.dumps(env))],
+    ids=["deepcopy", "pickle"],
+)
+def test_wrapper_can_be_copied_and_pickled(clone):
+    """The info blocks are written through memoryviews, which neither can save: a copy makes
+    its own, and both go on with correct, unshared info rows."""
+    env = counter([[1, 1]], terminate_at=10**6)
+    first = env.step(3)[4]
+    twin = clone(env)
+    for wrapper in (env, twin):
+        info = wrapper.step(3)[4]
+        assert_info(info, routine_actions=np.array([1, 1]), routine_rewards=np.array([2.0, 2.0]),
+                    routine_length=2)
+        assert not np.shares_memory(first["routine_rewards"], info["routine_rewards"])
+    assert twin.env.t == env.env.t == 4
 
 
 def test_structured_observations_are_stacked_and_padded():
