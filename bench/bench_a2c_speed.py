@@ -14,10 +14,12 @@ shared between them:
 - ``net-t1`` / ``net-t2``: the network-only bound, this file's `--worker net` with 1 or 2
   torch threads: the `Agent` of `rapl_a2c.py` (imported from the file) for the env's agent
   observation space and primitive action count (`--mode a2c`), trained with exactly the
-  script's per-rollout network work and defaults (its `Args`): `--num-steps` acting passes
-  `Agent.act` on batches of `--num-envs` observations without a graph, each
-  sampled action brought back with `.cpu().numpy()`, one `Agent.evaluate` pass over the
-  rollout's decision states and the bootstrap states, the losses (policy, value ×
+  script's per-rollout network work and defaults (its `Args`, `--update-forward auto`):
+  `--num-steps` acting passes on batches of `--num-envs` observations, each sampled action
+  brought back with `.cpu().numpy()`; for the small networks (MinAtar) `Agent.act` without a
+  graph, then one `Agent.evaluate` pass over the rollout's decision states and the bootstrap
+  states; for the large CNNs (Atari) `get_action_and_value` keeping each pass's graph, then
+  one pass without a graph over the bootstrap states; the losses (policy, value ×
   `vf_coef`, entropy × `ent_coef`) against random returns, the loss values read with
   `.item()`, `zero_grad`, `backward`, `clip_grad_norm_`,
   and an RMSprop(`foreach=True`) step, with the learning rate annealed per rollout as the
@@ -482,6 +484,7 @@ def net_worker(args) -> None:
     import torch.nn as nn
 
     import routine_gym
+    from routine_gym.envs import profile_for
     from routine_gym.envs.factory import make_vector_env
     from routine_gym.returns import critic_loss
 
@@ -499,6 +502,8 @@ def net_worker(args) -> None:
     space, num_actions = probe.single_observation_space, int(probe.single_action_space.n)
     probe.close()
     agent = script.Agent(args.env_id, space, num_actions)
+    # The script's --update-forward auto: the acting graphs for the large CNNs.
+    keep_graph = profile_for(args.env_id).network in ("nature_cnn", "impala_cnn")
     optimizer = torch.optim.RMSprop(agent.parameters(), lr=defaults.learning_rate,
                                     alpha=defaults.rmsprop_alpha, eps=defaults.rmsprop_eps,
                                     foreach=True)
@@ -522,19 +527,32 @@ def net_worker(args) -> None:
         if defaults.anneal_lr:
             optimizer.param_groups[0]["lr"] = (1.0 - i * per_rollout / total) \
                 * defaults.learning_rate
-        rollout_obs = []
-        for step in range(n):  # acting: no graph
+        rollout_obs, acting_outputs = [], []
+        for step in range(n):
             obs = inputs[(i * (n + 1) + step) % NET_BATCHES]
-            with torch.inference_mode():
-                agent.act(torch.as_tensor(obs)).cpu().numpy()
+            if keep_graph:  # acting keeps its graph for the update (--update-forward acting)
+                action, logprob, entropy, value = agent.get_action_and_value(
+                    torch.as_tensor(obs))
+                acting_outputs.append((logprob, entropy, value))
+                action.cpu().numpy()
+            else:  # acting: no graph
+                with torch.inference_mode():
+                    agent.act(torch.as_tensor(obs)).cpu().numpy()
             rollout_obs.append(obs)
         rollout_obs.append(inputs[(i * (n + 1) + n) % NET_BATCHES])  # the state after it
-        # The update: one pass over the n·e decision states and the e states after them.
-        logprobs, entropies, all_values = agent.evaluate(
-            torch.as_tensor(np.stack(rollout_obs).reshape(-1, *space.shape)),
-            torch.as_tensor(actions[i % NET_BATCHES].reshape(-1)))
-        values = all_values[: n * e].view(n, e)
-        all_values[n * e:].detach().cpu().numpy()  # the bootstrap
+        if keep_graph:
+            logprobs, entropies, values = (torch.cat(x) for x in zip(*acting_outputs,
+                                                                     strict=True))
+            values = values.view(n, e)
+            with torch.no_grad():  # the bootstrap
+                agent.get_value(torch.as_tensor(rollout_obs[n])).cpu().numpy()
+        else:
+            # The update: one pass over the n·e decision states and the e states after them.
+            logprobs, entropies, all_values = agent.evaluate(
+                torch.as_tensor(np.stack(rollout_obs).reshape(-1, *space.shape)),
+                torch.as_tensor(actions[i % NET_BATCHES].reshape(-1)))
+            values = all_values[: n * e].view(n, e)
+            all_values[n * e:].detach().cpu().numpy()  # the bootstrap
         b_returns = torch.as_tensor(targets[i % NET_BATCHES], dtype=torch.float32)
         advantages = b_returns - values
         pg_loss = -(logprobs.view(n, e) * advantages.detach()).mean()
@@ -568,9 +586,14 @@ def net_worker(args) -> None:
         "setup": (f"Network-only bound: `Agent` of rapl_a2c.py for {tuple(space.shape)} "
                   f"{np.dtype(space.dtype).name} observations and {num_actions} actions "
                   f"({sum(p.numel() for p in agent.parameters()):,} parameters); per rollout "
-                  f"{n} acting passes on {e} observations without a graph (actions "
-                  f"`.cpu().numpy()`), one pass over the {n * e} decision states and the {e} "
-                  "bootstrap states (`Agent.evaluate`), the losses (value × "
+                  + (f"{n} acting passes on {e} observations keeping their graphs for the "
+                     f"update (actions `.cpu().numpy()`), one pass without a graph over the "
+                     f"{e} bootstrap states (the script's --update-forward acting)"
+                     if keep_graph else
+                     f"{n} acting passes on {e} observations without a graph (actions "
+                     f"`.cpu().numpy()`), one pass over the {n * e} decision states and the "
+                     f"{e} bootstrap states (`Agent.evaluate`)")
+                  + ", the losses (value × "
                   f"{defaults.vf_coef:g}, entropy × {defaults.ent_coef:g}) from random "
                   f"returns, backward, `clip_grad_norm_({defaults.max_grad_norm:g})`, "
                   f"RMSprop(lr={defaults.learning_rate:g}, alpha={defaults.rmsprop_alpha:g}, "
