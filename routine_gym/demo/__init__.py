@@ -16,10 +16,14 @@ One module per idea; every public name is importable from `routine_gym.demo` its
   the keyboard (`record_human_demo`).
 - `routine_gym.demo.suite`: the demos shipped with routine-gym: `DEMO_SUITE`, `DEMOS_DIR`,
   `demo_filename`, `shipped_demo_path`.
+- `routine_gym.demo.minari`: Minari datasets: `export_minari` writes a demo as one,
+  `load_minari_demo` reads one as a demo, and `read_demo` reads what a user names as a demo, a
+  file or `minari:DATASET_ID` (`MINARI_SCHEME`).
 """
 
 from routine_gym.demo.collect import record_agent_demo, record_human_demo
 from routine_gym.demo.format import Demo, DemoEpisode
+from routine_gym.demo.minari import MINARI_SCHEME, export_minari, load_minari_demo, read_demo
 from routine_gym.demo.npz import DEMO_FORMAT, DEMO_VERSION, READABLE_VERSIONS, demo_file_version
 from routine_gym.demo.recorder import DecisionMarker, DemoRecorder
 from routine_gym.demo.replay import DemoReplayError, ReplayResult, replay, upgrade_demo
@@ -30,6 +34,7 @@ __all__ = [
     "DEMO_FORMAT",
     "DEMO_SUITE",
     "DEMO_VERSION",
+    "MINARI_SCHEME",
     "Demo",
     "DemoEpisode",
     "DemoRecorder",
@@ -39,6 +44,9 @@ __all__ = [
     "READABLE_VERSIONS",
     "demo_file_version",
     "demo_filename",
+    "export_minari",
+    "load_minari_demo",
+    "read_demo",
     "upgrade_demo",
     "record_agent_demo",
     "record_human_demo",

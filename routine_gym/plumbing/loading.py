@@ -1,6 +1,7 @@
 """The demo and the routines of a run: the one way every script in `algos/` loads them.
 
-- `load_demo(env_id, path)`: the demo given, or the one shipped in `demos/` for the env.
+- `load_demo(env_id, path)`: the demo given (a demo file, or a local Minari dataset as
+  `minari:DATASET_ID`), or the one shipped in `demos/` for the env.
 - `check_demo_env(demo, env_id)`: the demo's actions are the env's primitive actions.
 - `load_routines(...)`: the K routines of a run, mined from a demo (any proposer of
   `routine_gym.mining`) or the best K of a saved library (`--routine-library`), checked
@@ -16,7 +17,8 @@ from typing import Any
 import gymnasium as gym
 from gymnasium import spaces
 
-from routine_gym.demo import Demo, shipped_demo_path
+from routine_gym.demo import Demo, read_demo, shipped_demo_path
+from routine_gym.demo.minari import minari_dataset_id
 from routine_gym.envs import same_env
 from routine_gym.envs.factory import make_primitive_env
 from routine_gym.library import RoutineLibrary
@@ -31,14 +33,15 @@ def load_demo(env_id: str, path: str | None = None, purpose: str = "imitation") 
 
     Args:
         env_id: the env the run trains on; the demo must have been recorded on it.
-        path: the demo file (`--demo`), or None for the shipped one.
+        path: the demo file or `minari:DATASET_ID` (`--demo`), or None for the shipped one.
         purpose: what the demo is for, named in the error when there is none
             (`"imitation"`, `"--mode rapl"`, ...).
 
     Raises:
         UsageError: no path was given and no demo of `env_id` ships (saying how to make one),
-            or the file is not a demo, or a demo of another env.
-        FileNotFoundError: no file at `path`.
+            or the file (dataset) is not a demo, or a demo of another env, or minari is not
+            installed for a `minari:` demo.
+        FileNotFoundError: no file at `path`, or no such local Minari dataset.
     """
     path = path or shipped_demo_path(env_id)
     if path is None:
@@ -49,8 +52,10 @@ def load_demo(env_id: str, path: str | None = None, purpose: str = "imitation") 
             f"--record-demo demo.npz`) and pass it with --demo"
         )
     try:
-        return Demo.load(path, env_id=env_id), path
-    except FileNotFoundError:
+        return read_demo(path, env_id=env_id), path
+    except FileNotFoundError as exc:
+        if minari_dataset_id(path) is not None:  # the message says where it was looked for
+            raise FileNotFoundError(f"--demo {exc}") from None
         raise FileNotFoundError(f"--demo {path}: no such demo file") from None
     except ValueError as exc:
         raise UsageError(str(exc)) from exc
