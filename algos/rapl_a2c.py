@@ -81,6 +81,12 @@ class Args:
     """if toggled, `torch.backends.cudnn.deterministic=True`"""
     cuda: bool = False
     """if toggled, use CUDA when available (the CPU is the default)"""
+    track: bool = False
+    """if toggled, also log the run to Weights & Biases (TensorBoard is always written)"""
+    wandb_project_name: str = "routine-gym"
+    """the W&B project of --track"""
+    wandb_entity: str | None = None
+    """the W&B entity (team) of --track (default: your W&B default entity)"""
     capture_video: bool = False
     """whether to capture videos of the agent (in `videos/`)"""
 

@@ -167,7 +167,9 @@ def test_command_resolves_run_references_and_resumes_from_a_checkpoint(tmp_path)
     run = tmp_path / "aaaaaaaaaaaa" / "MinAtar-Breakout-v1__rapl_a2c-rapl__1__1"
     run.mkdir(parents=True)
     (run / "checkpoint.pt").write_bytes(b"")
-    assert backends.command(config, tmp_path, python="py")[2:] == ["--resume", str(run)]
+    # Untracked (no `tracking`), a resume turns off the tracking a checkpoint may hold.
+    assert backends.command(config, tmp_path, python="py")[2:] == ["--resume", str(run),
+                                                                   "--no-track"]
 
 
 # -- sweeps of real runs ---------------------------------------------------------------------------

@@ -7,6 +7,11 @@ run's process on this machine; `ray` is one Ray task per run asking for its CPUs
 `--cuda`), in a cluster it joins (`--address`) or a local instance it starts and stops. A run's
 process dies with the sweep that started it, and SIGTERM stops a sweep as Ctrl-C does
 (`install_signal_handlers`).
+
+`experiment run --track` gives every run's script `--track --wandb-project-name P
+[--wandb-entity E]` (`tracking_flags`): the run's config as the sweep submits it carries them
+under `tracking`, beside its flags and never among them, so a run's key, its `config.json` and
+its result are the same with or without tracking, and a sweep may be resumed either way.
 """
 
 from __future__ import annotations
@@ -41,7 +46,7 @@ from routine_gym.plumbing.atomic import atomic_write_text
 from routine_gym.plumbing.errors import UsageError, one_line
 
 __all__ = ["LocalBackend", "RayBackend", "command", "execute_run", "install_signal_handlers",
-           "file_tail", "script_path"]
+           "file_tail", "script_path", "tracking_flags"]
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -69,23 +74,38 @@ def _resolve(value: Any, runs: Path, key: str) -> list[str]:
     return [text]
 
 
+def tracking_flags(tracking: dict[str, Any] | None, resume: bool = False) -> list[str]:
+    """A script's W&B flags for the sweep's tracking (`{"project": P, "entity": E or None}`):
+    none for an untracked new run; `--no-track` for an untracked resume, whose checkpoint may
+    have been made by a tracked sweep (the sweep's command line decides, not the checkpoint)."""
+    if tracking is None:
+        return ["--no-track"] if resume else []
+    words = ["--track", "--wandb-project-name", str(tracking["project"])]
+    if tracking.get("entity") is not None:
+        words += ["--wandb-entity", str(tracking["entity"])]
+    return words
+
+
 def command(config: dict[str, Any], runs: Path, cuda: bool = False,
             python: str | None = None) -> list[str]:
-    """The command line of a run: resume from its newest checkpoint, or start it."""
+    """The command line of a run: resume from its newest checkpoint, or start it; with the
+    sweep's W&B flags when `config` has `tracking` (`tracking_flags`)."""
     key = config["key"]
     folder = runs / key
     python = python or sys.executable
     script = str(script_path(config["script"]))
+    tracking = config.get("tracking")
     checkpoints = sorted(folder.glob("*/checkpoint.pt"), key=lambda p: p.stat().st_mtime)
     if checkpoints:
-        return [python, script, "--resume", str(checkpoints[-1].parent)]
+        return [python, script, "--resume", str(checkpoints[-1].parent),
+                *tracking_flags(tracking, resume=True)]
     words = [python, script]
     for flag, value in config["flags"].items():
         if isinstance(value, bool):  # the scripts' booleans are --flag / --no-flag
             words.append(f"--{flag}" if value else f"--no-{flag}")
         else:
             words += [f"--{flag}", *_resolve(value, runs, key)]
-    words += ["--run-dir", str(folder), "--torch-threads", "1"]
+    words += ["--run-dir", str(folder), "--torch-threads", "1", *tracking_flags(tracking)]
     if cuda:
         words.append("--cuda")
     return words

@@ -33,6 +33,11 @@ Backends (`backends`): `local`, a pool of `--jobs` processes on this machine, an
 task per run asking for its CPUs (and a GPU with `--cuda`); `--address HOST:PORT` joins an
 existing cluster, whose nodes must see OUT at the same path (a shared filesystem), and without
 it a local Ray instance of `--jobs` CPUs is started and stopped.
+
+Tracking (`tracking={"project": P, "entity": E}`, the CLI's `--track`): every run's script also
+logs to Weights & Biases (`backends.tracking_flags`); the flags are not a run's, so its key
+is the same with or without them. W&B's files go to each run's folder (`OUT/runs/{key}/wandb/`,
+the run's working folder) unless `WANDB_DIR` says otherwise.
 """
 
 from __future__ import annotations
@@ -208,7 +213,7 @@ def check_ray_address(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
 
 
 def check_options(backend: str = "local", jobs: int = 1, cpus_per_run: int = 1,
-                  address: str | None = None) -> None:
+                  address: str | None = None, track: bool = False) -> None:
     """Refuse bad sweep options before anything is written (see `run_experiment`)."""
     if backend not in ("local", "ray"):
         raise UsageError(f"--backend needs to be local or ray, actual value: {backend}")
@@ -225,6 +230,10 @@ def check_options(backend: str = "local", jobs: int = 1, cpus_per_run: int = 1,
 
         if importlib.util.find_spec("ray") is None:
             raise UsageError("--backend ray needs Ray: pip install 'routine-gym[ray]'")
+    if track:
+        from routine_gym.plumbing.tracking import import_wandb
+
+        import_wandb()
 
 
 def plan(name: str, budget: str, seeds: Sequence[int] | None = None,
@@ -261,25 +270,27 @@ def run_experiment(name: str, budget: str, out: str | Path, *, jobs: int = 1,
                    backend: str = "local", address: str | None = None,
                    seeds: Sequence[int] | None = None, envs: Sequence[str] | None = None,
                    cuda: bool = False, cpus_per_run: int = 1, stream: Any = None,
-                   poll: float = 1.0) -> SweepSummary:
+                   poll: float = 1.0, tracking: dict[str, Any] | None = None) -> SweepSummary:
     """Run experiment `name` at `budget` into `out` (see the module docstring), holding the
-    folder's lock (`sweep_lock`) throughout.
+    folder's lock (`sweep_lock`) throughout. `tracking` (`{"project": P, "entity": E or
+    None}`) has every run log to W&B too.
 
     Raises:
         UsageError: an unknown experiment, budget, seed, env (one the experiment does not
             have) or backend; `--jobs` or `--cpus-per-run` below 1; a Ray address that does not
             answer; `out` holding the experiment at another budget, being a file, under a
             file, or not writable; another sweep holding `out`; a manifest or `config.json`
-            of the wrong shape (naming the file); Ray missing.
+            of the wrong shape (naming the file); Ray missing; wandb missing with `tracking`.
     """
     stream = stream if stream is not None else sys.stdout
-    check_options(backend, jobs, cpus_per_run, address)
+    check_options(backend, jobs, cpus_per_run, address, track=tracking is not None)
     entries = build(name, budget, seeds, envs)
     with sweep_lock(out) as folder:
         try:
             return _sweep(name, budget, folder, entries, jobs=jobs, backend=backend,
                           address=address, whole=bool(seeds or envs), cuda=cuda,
-                          cpus_per_run=cpus_per_run, stream=stream, poll=poll)
+                          cpus_per_run=cpus_per_run, stream=stream, poll=poll,
+                          tracking=tracking)
         except OSError as exc:  # a full disk, a folder made read-only meanwhile
             raise UsageError(f"cannot write the sweep folder {folder}: "
                              f"{exc.filename or ''}{': ' if exc.filename else ''}"
@@ -312,7 +323,7 @@ def _finished(runs: Path, key: str, progress: _Progress, name: str) -> bool:
 
 def _sweep(name: str, budget: str, out: Path, entries: list[Entry], *, jobs: int,
            backend: str, address: str | None, whole: bool, cuda: bool, cpus_per_run: int,
-           stream: Any, poll: float) -> SweepSummary:
+           stream: Any, poll: float, tracking: dict[str, Any] | None = None) -> SweepSummary:
     runs = out / "runs"
     # The manifest lists the whole experiment, so a report of a sweep run seed by seed (or game
     # by game) counts the runs still to do as missing.
@@ -364,7 +375,9 @@ def _sweep(name: str, budget: str, out: Path, entries: list[Entry], *, jobs: int
                     break
                 if all(n in done for n in spec.needs):
                     todo.remove(key)
-                    handles[runner.submit(spec.config(), runs, cuda)] = key
+                    # The tracking rides beside the run's flags: its key stays the same.
+                    config = {**spec.config(), **({"tracking": tracking} if tracking else {})}
+                    handles[runner.submit(config, runs, cuda)] = key
             if not handles:
                 for key in todo:  # nothing can start them: their needs are not in the sweep
                     missing = next(n for n in specs[key].needs if n not in done)

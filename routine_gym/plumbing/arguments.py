@@ -148,7 +148,9 @@ def parse_args(args_type: type, renamed: dict[str, str] | None = None,
 
     argv = list(sys.argv[1:] if argv is None else argv)
     _GIVEN_FLAGS.clear()
-    _GIVEN_FLAGS.update(a[2:].split("=")[0].replace("-", "_") for a in argv if a.startswith("--"))
+    names = [a[2:].split("=")[0].replace("-", "_") for a in argv if a.startswith("--")]
+    # tyro's `--no-flag` sets the boolean `flag` (`--resume RUN --no-track` changes `track`).
+    _GIVEN_FLAGS.update(names, (n[len("no_"):] for n in names if n.startswith("no_")))
     for old, new in (renamed or {}).items():
         if any(a == old or a.startswith(old + "=") for a in argv):
             raise UsageError(f"{old} was renamed: use {new}")

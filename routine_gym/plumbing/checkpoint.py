@@ -96,7 +96,7 @@ def _same_kind(value: Any, default: Any) -> bool:
 RESUMABLE_CHANGES = frozenset({
     "resume", "run_dir", "checkpoint_every", "log_every", "torch_threads", "save_model",
     "eval_episodes", "eval_max_steps", "eval_greedy", "record_demo", "demo_episodes", "cuda",
-    "capture_video",
+    "capture_video", "track", "wandb_project_name", "wandb_entity",
 })
 
 

@@ -11,7 +11,9 @@ checkpoint holds and puts it back on `--resume` (returning the step counters),
 `run.checkpoint_if_due(...)` saves one every `--checkpoint-every` steps (with every RNG state
 and the `Args` as JSON), and `run.finish(policy, ...)` saves the last checkpoint and the model,
 evaluates (`eval.json`, `--extra-evals`), records `--record-demo` and closes the writer; files
-go through the one atomic writer of `routine_gym.plumbing.atomic`.
+go through the one atomic writer of `routine_gym.plumbing.atomic`. With `--track` the writer's
+scalars also go to Weights & Biases (`routine_gym.plumbing.tracking`), and the W&B run id
+travels in the checkpoints so that `--resume` continues the same W&B run.
 
 The argument check (`check_args`, `DOMAINS`) and the command line (`parse_args`) are in
 `routine_gym.plumbing.arguments`.
@@ -19,6 +21,7 @@ The argument check (`check_args`, `DOMAINS`) and the command line (`parse_args`)
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
@@ -65,6 +68,7 @@ def run_script(main: Callable[[Any], Any], args_type: type,
     except expected_errors() as exc:
         for run in _NEW_RUNS:
             _remove_failed_run(run)
+        _end_tracking(exit_code=2)  # before the error line, which a log's last line should be
         if debug:
             raise
         print(f"{script}: error: {one_line(exc)}", file=sys.stderr)
@@ -114,6 +118,10 @@ class Run:
     """The `Args` field of the run's budget."""
     saved_budget: int | None = None
     """The budget the resumed checkpoint was saved with."""
+    tracking: Any = None
+    """The W&B run the writer's scalars also go to (`--track`; None without)."""
+    wandb_run_id: str | None = None
+    """The W&B run id the checkpoints keep: this run's, or the resumed checkpoint's."""
 
     @property
     def checkpoint_path(self) -> str:
@@ -128,8 +136,9 @@ class Run:
         settings = asdict(self.args)
         if self.saved_budget is not None and settings[self.budget] < self.saved_budget:
             settings[self.budget] = self.saved_budget
+        tracked = {} if self.wandb_run_id is None else {"wandb_run_id": self.wandb_run_id}
         write_checkpoint(
-            {**state, "rng": rng_state(self.rng), "args": json.dumps(settings)},
+            {**state, "rng": rng_state(self.rng), "args": json.dumps(settings), **tracked},
             self.checkpoint_path,
         )
 
@@ -245,7 +254,8 @@ class Run:
                **counters: int) -> dict[str, Any] | None:
         """End the run: the last checkpoint (with `--checkpoint-every`), the model
         (`--save-model`), the evaluation in `eval.json` (`--eval-episodes`), the evaluations of
-        `--extra-evals`, the demo of `--record-demo`, and the writer closed.
+        `--extra-evals`, the demo of `--record-demo`, and the writer closed (and the W&B run
+        of `--track` ended).
 
         Args:
             policy: the trained policy, as `evaluate_policy` takes it.
@@ -286,6 +296,8 @@ class Run:
         if getattr(args, "record_demo", None):
             self._record_demo(policy, routines, step)
         self.writer.close()
+        if self.tracking is not None:
+            self.tracking.finish()
         return result
 
     def _record_demo(self, policy: Callable[..., int], routines: Any, step: int) -> None:
@@ -333,9 +345,13 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
               ) -> Run:
     """Check `args`, resume or make the run folder, open the writer, seed, pick the device.
 
+    With `--track` the W&B run starts too (or, on `--resume`, the checkpoint's W&B run goes
+    on), and the writer sends it every scalar it writes (`routine_gym.plumbing.tracking`).
+
     Args:
         args: the script's `Args` (with `exp_name`, `seed`, `env_id`, `run_dir`, `resume`,
-            `torch_deterministic`, `torch_threads`, `cuda`).
+            `torch_deterministic`, `torch_threads`, `cuda`, and `track`,
+            `wandb_project_name`, `wandb_entity` where it has `--track`).
         script: the script's file name, for error messages (`"rapl_a2c.py"`).
         checkpoint_keys: what the script's checkpoints hold (`--resume` checks for each).
         budget: the `Args` field of the run's budget (`--resume` may change it).
@@ -365,17 +381,34 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
                              f"({exc})") from None
         name = os.path.basename(path)
         check_env(args.env_id)
+        _check_tracking(args)
         os.makedirs(path, exist_ok=True)
     else:
         checkpoint = None
         check_env(args.env_id)
+        _check_tracking(args)
         mode = getattr(args, "mode", None)
         experiment = args.exp_name if mode is None else f"{args.exp_name}-{mode}"
         name, path = _new_run_folder(
             args.run_dir, f"{args.env_id.replace('/', '-')}__{experiment}__{args.seed}")
     from routine_gym.plumbing.scalars import ScalarWriter
 
-    writer = ScalarWriter(path)  # a SummaryWriter writing each step's scalars as one event
+    wandb_run_id = None if checkpoint is None else checkpoint.get("wandb_run_id")
+    tracking = None
+    if getattr(args, "track", False):
+        from routine_gym.plumbing.tracking import start_tracking
+
+        try:
+            tracking = start_tracking(args, name, wandb_run_id)
+        except UsageError:
+            if checkpoint is None:
+                with contextlib.suppress(OSError):
+                    os.rmdir(path)  # the new run's folder, still empty
+            raise
+        wandb_run_id = tracking.run_id
+        _TRACKED.append(tracking)
+    # A SummaryWriter writing each step's scalars as one event, and to W&B with --track.
+    writer = ScalarWriter(path, mirror=tracking)
     writer.add_text(
         "hyperparameters",
         "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in vars(args).items()),
@@ -392,7 +425,8 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
         torch.set_num_threads(args.torch_threads)
     device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
     run = Run(args=args, name=name, path=path, writer=writer, device=device, rng=rng,
-              checkpoint=checkpoint, budget=budget, saved_budget=saved_budget)
+              checkpoint=checkpoint, budget=budget, saved_budget=saved_budget,
+              tracking=tracking, wandb_run_id=wandb_run_id)
     if checkpoint is None:
         _NEW_RUNS.append(run)
     return run
@@ -401,6 +435,8 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
 #: The new runs this process started: `run_script` removes the folder of one that failed
 #: before it had a checkpoint or a result.
 _NEW_RUNS: list[Run] = []
+#: The W&B runs this process started (`--track`): `run_script` ends those of a failed run.
+_TRACKED: list[Any] = []
 
 
 def _new_run_folder(run_dir: str, stem: str) -> tuple[str, str]:
@@ -423,6 +459,20 @@ def _new_run_folder(run_dir: str, stem: str) -> tuple[str, str]:
                              f"({exc.strerror})") from None
         return name, path
     raise UsageError(f"--run-dir {run_dir}: no free run folder name for {stem}")
+
+
+def _check_tracking(args: Any) -> None:
+    """`--track` without wandb installed: a one-line error before the run's folder is made."""
+    if getattr(args, "track", False):
+        from routine_gym.plumbing.tracking import import_wandb
+
+        import_wandb()
+
+
+def _end_tracking(exit_code: int) -> None:
+    """End the W&B run of a run that failed (wandb would at exit, printing after the error)."""
+    for tracking in _TRACKED:
+        tracking.finish(exit_code=exit_code)
 
 
 def _remove_failed_run(run: Run) -> None:

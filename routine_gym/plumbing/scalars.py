@@ -9,6 +9,10 @@ several values) when the step changes, on `flush()` and on `close()`: about 4 µ
 TensorBoard (and `EventAccumulator`, `tbparse`, ...) reads back the same tags, steps and float32
 values; only the events' wall times are shared by the scalars of one step.
 
+`mirror`, when given, is called with each event's step and its `(tag, value)` pairs as the
+event is written, the values as TensorBoard stores them: `--track` logs them to Weights &
+Biases this way (`routine_gym.plumbing.tracking`), so both sinks hold the same scalars.
+
 Example:
     >>> import tempfile
     >>> from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
@@ -28,8 +32,10 @@ Example:
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 from tensorboard.compat.proto.summary_pb2 import Summary
 from torch.utils.tensorboard import SummaryWriter
 
@@ -37,10 +43,18 @@ __all__ = ["ScalarWriter"]
 
 
 class ScalarWriter(SummaryWriter):
-    """A `SummaryWriter` whose `add_scalar` groups the scalars of one step into one event."""
+    """A `SummaryWriter` whose `add_scalar` groups the scalars of one step into one event.
 
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
+    Args:
+        mirror: called as `mirror(step, [(tag, value), ...])` for each scalar event written
+            (None: TensorBoard alone). The other arguments are `SummaryWriter`'s.
+    """
+
+    def __init__(self, *args: Any,
+                 mirror: Callable[[int, list[tuple[str, float]]], None] | None = None,
+                 **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
+        self.mirror = mirror
         self._step: int | None = None
         self._values: list[Summary.Value] = []
 
@@ -51,6 +65,10 @@ class ScalarWriter(SummaryWriter):
             self._write_pending()
             super().add_scalar(tag, scalar_value, global_step, walltime, new_style,
                                double_precision)
+            if self.mirror is not None:  # the event's step is 0 when none is given
+                value = float(scalar_value)
+                self.mirror(0 if global_step is None else global_step,
+                            [(tag, value if double_precision else float(np.float32(value)))])
             return
         if global_step != self._step:
             self._write_pending()
@@ -62,6 +80,8 @@ class ScalarWriter(SummaryWriter):
         if self._values:
             self._get_file_writer().add_summary(Summary(value=self._values), self._step,
                                                 time.time())
+            if self.mirror is not None:
+                self.mirror(self._step, [(v.tag, v.simple_value) for v in self._values])
             self._values = []
 
     def flush(self) -> None:
