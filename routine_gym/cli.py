@@ -1,9 +1,11 @@
-"""The `routine-gym` command line: mine, show, replay, play and record.
+"""The `routine-gym` command line: mine, show, replay, upgrade, export, play and record.
 
     routine-gym mine demos/MiniQbert-v0.npz --num-routines 3 --out routines.json
     routine-gym show routines.json
     routine-gym replay demos/MiniQbert-v0.npz
     routine-gym upgrade old_demo.npz --out new_demo.npz
+    routine-gym export demos/MinAtar-Breakout-v1.npz --minari routine-gym/breakout-expert-v0
+    routine-gym mine minari:routine-gym/breakout-expert-v0
     routine-gym show-demos
     routine-gym record MiniQbert-v0 --policy expert --episodes 10 --out my_demo.npz
     routine-gym play ALE/Qbert-v5 --out my_qbert.npz
@@ -56,11 +58,13 @@ def _not_an_input(out: str | None, flag: str, *inputs: str) -> None:
 
 
 def _load_demo(path: str):
-    from routine_gym.demo import Demo
+    """A demo file, or a local Minari dataset named `minari:DATASET_ID`."""
+    from routine_gym.demo import read_demo
+    from routine_gym.demo.minari import minari_dataset_id
 
-    if not Path(path).is_file():
+    if minari_dataset_id(path) is None and not Path(path).is_file():
         raise CLIError(f"no demo file at {path}")
-    return Demo.load(path)
+    return read_demo(path)
 
 
 def cmd_mine(args: argparse.Namespace) -> int:
@@ -105,20 +109,23 @@ def cmd_mine(args: argparse.Namespace) -> int:
 
 
 def cmd_show(args: argparse.Namespace) -> int:
+    from routine_gym.demo.minari import minari_dataset_id
+
     _needs("--head", args.head, args.head >= 0, "≥ 0")
     path = Path(args.path)
-    if not path.is_file():
+    is_file = minari_dataset_id(args.path) is None
+    if is_file and not path.is_file():
         raise CLIError(f"no file at {path}")
-    if path.suffix == ".json":
+    if is_file and path.suffix == ".json":
         library = RoutineLibrary.load(path)
         print(library.describe())
         if library.source:
             print("source: " + ", ".join(f"{k}={v}" for k, v in library.source.items()
                                          if k != "scores"))
         return 0
-    demo = _load_demo(str(path))
+    demo = _load_demo(args.path)
     meta = demo.meta
-    print(f"demo: {path}")
+    print(f"demo: {args.path}")
     for key in ("env_id", "env_kwargs", "source", "created", "seeds", "scores"):
         if key in meta:
             print(f"  {key}: {meta[key]}")
@@ -127,7 +134,7 @@ def cmd_show(args: argparse.Namespace) -> int:
     print(f"  steps: {demo.num_decisions} decided by the demonstrator, {demo.num_injected} "
           f"injected by wrappers"
           + (f" ({', '.join(meta['recorded_under'])})" if meta.get("recorded_under") else ""))
-    if _file_version(path) == 1:
+    if is_file and _file_version(path) == 1:
         print(f"  format version 1 (no decisions recorded: every step counts as one); "
               f"`routine-gym upgrade {path}` marks the injected steps")
     meanings = meta.get("action_meanings")
@@ -148,9 +155,13 @@ def _file_version(path: Path) -> int:
 
 def cmd_upgrade(args: argparse.Namespace) -> int:
     from routine_gym.demo import DEMO_VERSION, DemoReplayError, upgrade_demo
+    from routine_gym.demo.minari import minari_dataset_id
     from routine_gym.envs.factory import recording_stacks
     from routine_gym.plumbing.atomic import check_writable
 
+    if minari_dataset_id(args.demo) is not None:
+        raise CLIError(f"upgrade rewrites a version-1 demo file; {args.demo} is a Minari "
+                       "dataset, not a file")
     out = args.out or args.demo  # in place by default: only a verified replay replaces it
     check_writable(out, "--out")
     demo = _load_demo(args.demo)
@@ -182,6 +193,19 @@ def cmd_upgrade(args: argparse.Namespace) -> int:
         return 0
     raise CLIError(f"{args.demo} replays under none of the preprocessing stacks, so its injected "
                    "steps cannot be re-derived; nothing written: " + " | ".join(failures))
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from routine_gym.demo import export_minari
+
+    demo = _load_demo(args.demo)
+    target = export_minari(demo, args.minari, source=args.demo)
+    observations = "recorded" if demo.has_observations else "replayed from the seeds"
+    print(f"exported {args.demo} ({demo.env_id}, {demo.num_episodes} episode(s), {len(demo)} "
+          f"steps: {demo.num_decisions} decided, {demo.num_injected} injected; observations "
+          f"{observations}) as the Minari dataset {args.minari} at {target}")
+    print(f"use it as a demo: routine-gym mine minari:{args.minari}")
+    return 0
 
 
 def cmd_show_demos(args: argparse.Namespace) -> int:
@@ -371,7 +395,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser, commands = build_parsers()
     handlers = {
         "mine": cmd_mine, "show": cmd_show, "show-demos": cmd_show_demos, "replay": cmd_replay,
-        "upgrade": cmd_upgrade, "record": cmd_record, "play": cmd_play,
+        "upgrade": cmd_upgrade, "export": cmd_export, "record": cmd_record, "play": cmd_play,
         "experiment list": cmd_experiment_list, "experiment run": cmd_experiment_run,
         "experiment report": cmd_experiment_report,
     }
@@ -418,7 +442,15 @@ def cmd_experiment_run(args: argparse.Namespace) -> int:
 
     # Every option is checked before the folder is touched; then the folder is held (one sweep
     # at a time) across all the experiments of `all`.
-    check_options(args.backend, args.jobs, args.cpus_per_run, args.address)
+    tracking = None
+    if args.track:
+        tracking = {"project": args.wandb_project_name or "routine-gym",
+                    "entity": args.wandb_entity}
+    elif args.wandb_project_name is not None or args.wandb_entity is not None:
+        flag = "--wandb-project-name" if args.wandb_project_name is not None else "--wandb-entity"
+        raise CLIError(f"{flag} names where --track logs: it needs --track")
+    check_options(args.backend, args.jobs, args.cpus_per_run, args.address,
+                  track=args.track)
     chosen = plan(args.name, args.budget, args.seeds, args.envs)
     install_signal_handlers()
     failed = 0
@@ -432,7 +464,7 @@ def cmd_experiment_run(args: argparse.Namespace) -> int:
             summary = run_experiment(name, args.budget, args.out, jobs=args.jobs,
                                      backend=args.backend, address=args.address,
                                      seeds=args.seeds, envs=envs, cuda=args.cuda,
-                                     cpus_per_run=args.cpus_per_run)
+                                     cpus_per_run=args.cpus_per_run, tracking=tracking)
             for key, why in summary.failed.items():
                 print(f"[{name}] run {key} failed: {why} (log: {args.out}/runs/{key}/log.txt)")
             failed += len(summary.failed)

@@ -16,8 +16,9 @@ def build_parsers() -> tuple[argparse.ArgumentParser, dict[str, argparse.Argumen
     `experiment run`), for the caller to bind to the function that runs it."""
     parser = argparse.ArgumentParser(
         prog="routine-gym",
-        description="Mine action routines from a demonstration, inspect them, and record or "
-        "replay demonstrations. Errors are one line with exit code 2; --debug (anywhere on the "
+        description="Mine action routines from a demonstration, inspect them, and record, "
+        "replay or export demonstrations. A demo is a .npz file or a local Minari dataset "
+        "(minari:DATASET_ID). Errors are one line with exit code 2; --debug (anywhere on the "
         "command line) or ROUTINE_GYM_DEBUG=1 shows their traceback.",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -27,6 +28,7 @@ def build_parsers() -> tuple[argparse.ArgumentParser, dict[str, argparse.Argumen
         "show-demos": _add_show_demos(sub),
         "replay": _add_replay(sub),
         "upgrade": _add_upgrade(sub),
+        "export": _add_export(sub),
         "record": _add_record(sub),
         "play": _add_play(sub),
         **_add_experiment(sub),
@@ -38,7 +40,8 @@ def _add_mine(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("mine", help="mine a routine library from a demo and print it",
                        description="Mine the top-K routines of a demo (SPEC §2) and print them "
                        "with action names, scores and frequencies.")
-    p.add_argument("demo", help="demo file (.npz) written by routine-gym")
+    p.add_argument("demo", help="demo file (.npz) written by routine-gym, or a local Minari "
+                   "dataset as minari:DATASET_ID")
     p.add_argument("--num-routines", "-k", type=int, default=3, help="K, routines to keep (3)")
     p.add_argument("--length-weight", type=float, default=0.1,
                    help="λ_length in the score f + λ·len (0.1)")
@@ -61,7 +64,8 @@ def _add_mine(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def _add_show(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """`routine-gym show PATH`: print a routine library or a demo."""
     p = sub.add_parser("show", help="print a routine library (.json) or a demo (.npz)")
-    p.add_argument("path", help="a routine library JSON or a demo .npz")
+    p.add_argument("path", help="a routine library JSON, a demo .npz, or a local Minari dataset "
+                   "as minari:DATASET_ID")
     p.add_argument("--head", type=int, default=20, help="demo actions to print (20)")
     return p
 
@@ -81,7 +85,8 @@ def _add_replay(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = sub.add_parser("replay", help="replay a demo from its seed and verify it",
                        description="Re-run the demo's actions in its env from its seed and "
                        "check rewards, terminations and length match. Exit code 1 on mismatch.")
-    p.add_argument("demo", help="demo file (.npz)")
+    p.add_argument("demo", help="demo file (.npz), or a local Minari dataset as "
+                   "minari:DATASET_ID")
     p.add_argument("--episode", type=int, default=None, help="replay only this episode")
     return p
 
@@ -100,6 +105,24 @@ def _add_upgrade(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    "rapl_a2c.py --record-demo uses), agent-0.1 (Atari, without served lives), "
                    "raw (CLI record and play: every step a decision), or auto: the first of "
                    "these that replays exactly (auto)")
+    return p
+
+
+def _add_export(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """`routine-gym export DEMO --minari DATASET_ID`: a demo as a Minari dataset."""
+    p = sub.add_parser("export", help="write a demo as a local Minari dataset",
+                       description="Write the demo's episodes as a Minari dataset in the local "
+                       "Minari folder (MINARI_DATASETS_PATH, else ~/.minari/datasets; nothing is "
+                       "uploaded): observations (replayed from the seeds when the demo keeps "
+                       "none), actions, rewards, flags, seeds, the decisions mask as "
+                       "infos['decision'], the env spec, and the demo's meta under 'routine_gym'. "
+                       "Arrow storage, image frames as PNG (lossless). Needs "
+                       "`pip install routine-gym[minari]`. Read it back anywhere a demo is "
+                       "taken as minari:DATASET_ID.")
+    p.add_argument("demo", help="demo file (.npz)")
+    p.add_argument("--minari", required=True, metavar="DATASET_ID",
+                   help="the new dataset's id, (namespace/)name-vVERSION, e.g. "
+                   "routine-gym/qbert-expert-v0; it must not exist yet")
     return p
 
 
@@ -169,6 +192,13 @@ def _add_experiment(sub: argparse._SubParsersAction) -> dict[str, argparse.Argum
     q.add_argument("--cuda", action="store_true", help="runs use CUDA (Ray: one GPU per run)")
     q.add_argument("--cpus-per-run", type=int, default=1,
                    help="CPUs a Ray task asks for, ≥ 1 (1)")
+    q.add_argument("--track", action="store_true",
+                   help="every run also logs to Weights & Biases (pip install "
+                   "'routine-gym[wandb]'); runs keep their keys, so a sweep resumes either way")
+    q.add_argument("--wandb-project-name", default=None,
+                   help="the W&B project of --track (routine-gym)")
+    q.add_argument("--wandb-entity", default=None,
+                   help="the W&B entity (team) of --track (your default entity)")
     run = q
     q = esub.add_parser("report", help="figures (PNG + CSV) and report.md of a sweep folder",
                         description="Write OUT/report/ from the runs finished in OUT. It only "
