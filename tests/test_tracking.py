@@ -224,3 +224,10 @@ def test_a_runs_command_line_carries_the_tracking_flags_when_started_and_resumed
     assert backends.command(config, tmp_path, python="py")[2:] == ["--resume", str(run),
                                                                    "--no-track"]
 
+
+def test_sweep_wandb_flags_without_track_are_a_one_line_error(tmp_path):
+    proc = subprocess.run([str(BIN / "routine-gym"), "experiment", "run", "rl", "--budget",
+                           "smoke", "--out", str(tmp_path / "out"), "--wandb-project-name", "P"],
+                          capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert_one_line_error(proc, "--wandb-project-name", "--track", prefix="routine-gym: error:")
+    assert not (tmp_path / "out").exists()
