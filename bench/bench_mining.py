@@ -1,8 +1,9 @@
 """Benchmark: routine mining on 10k / 100k / 1M actions against scikit-sequitur (SPEC §7).
 
-The target: mining a million actions (grammar, candidates, scoring, pruning) in at most 0.25×
-the time the pure-Python scikit-sequitur needs for the grammar alone, measured in the same run
-on the same input; memory linear in the input; the same input always giving the same library.
+The target: mining a million actions (grammar, candidates, scoring, pruning) in at most 0.15×
+the time the pure-Python scikit-sequitur needs for the grammar alone (issue 27; SPEC §9 asked
+0.25×), measured in the same run on the same input; memory linear in the input; the same input
+always giving the same library.
 
 For each size this measures, best of several repeats (`gc.collect()` before each, the
 collector left on while timing, as a user runs it; the contenders take turns within each
@@ -71,8 +72,9 @@ from routine_gym.sequitur import induce
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO_PATH = REPO / "demos" / "MiniQbert-v0.npz"
-#: The SPEC §7 target for mine / sksequitur at 1M actions, and where to aim.
-TARGET_RATIO, AIM_RATIO = 0.25, 0.1
+#: The target for mine / sksequitur at 1M actions (issue 27; SPEC §9 asked 0.25), and where
+#: to aim.
+TARGET_RATIO, AIM_RATIO = 0.15, 0.1
 INPUTS = ("motifs", "demo")
 
 
@@ -260,7 +262,7 @@ def render(rows: list[dict[str, Any]], info: dict[str, str], command: str,
         "",
         "| input | actions | sksequitur grammar | our grammar (C++) | our mine (full) "
         "| our grammar (Python) | mine / sksequitur | grammar C++ / sksequitur "
-        "| ≤ 0.25 at 1M | rules | load (1/5/15 min) |",
+        f"| ≤ {TARGET_RATIO} at 1M | rules | load (1/5/15 min) |",
         "|---|---:|---:|---:|---:|---:|---:|---:|:---:|---:|---|",
     ]
     for r in rows:

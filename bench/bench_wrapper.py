@@ -16,7 +16,8 @@ Time per primitive step = loop time / primitive steps executed (the env's `step`
 so routines and repeats cut short by the end of an episode are counted right; resets happen
 in the loop at the same points for every variant). Overhead = wrapped − bare per primitive
 step; ratio = the wrapper's overhead / `RepeatAction`'s at the same L (one-step calls: against
-`RepeatAction(env, 1)`). Target: ratio ≤ 1.5. Timing uses `time.perf_counter_ns` with the
+`RepeatAction(env, 1)`). Targets (issue 27): ratio ≤ 1.5 with observations off, ≤ 3 with
+them on. Timing uses `time.perf_counter_ns` with the
 garbage collector off; each figure is the best of many short measurements, the variants
 measured in turn within each repeat, so a burst of load on the machine hits all of them
 alike and the best is one taken in a quiet moment. Every variant's env is reset with seed 0
@@ -59,8 +60,9 @@ from routine_gym.plumbing.atomic import atomic_write_text
 from routine_gym.wrapper import RoutineActionWrapper
 
 REPO = Path(__file__).resolve().parents[1]
-#: The SPEC §7 target: the wrapper's overhead over RepeatAction's.
-TARGET_RATIO = 1.5
+#: The targets of issue 27: the wrapper's overhead over RepeatAction's, with observations off
+#: and on (SPEC §9: no larger than one of Gymnasium's own light wrappers).
+TARGET_RATIO, TARGET_RATIO_OBS = 1.5, 3.0
 ENVS = ("constant", "cartpole", "qbert")
 #: Routine lengths L per env; Qbert's step is ~1000x the constant env's, so fewer variants.
 ENV_LENGTHS = {"constant": (1, 3, 5, 10), "cartpole": (1, 3, 5, 10), "qbert": (1, 10)}
@@ -239,7 +241,7 @@ class Results:
     def _ratios(self) -> list[str]:
         lines = [
             "Overhead per primitive step (ns) and ratio to RepeatAction's overhead "
-            f"(target ≤ {TARGET_RATIO}):",
+            f"(targets: ≤ {TARGET_RATIO} obs=off, ≤ {TARGET_RATIO_OBS} obs=on):",
             "",
             "| call | L | RepeatAction overhead | wrapper overhead obs=off | ratio "
             "| wrapper overhead obs=on | ratio |",
@@ -252,7 +254,8 @@ class Results:
             on = self.overhead(f"{call} obs=on", length)
             lines.append(
                 f"| {call} | {length} | {reference:,.0f} | {off:,.0f} "
-                f"| {_ratio(off, reference)} | {on:,.0f} | {_ratio(on, reference)} |"
+                f"| {_ratio(off, reference, TARGET_RATIO)} | {on:,.0f} "
+                f"| {_ratio(on, reference, TARGET_RATIO_OBS)} |"
             )
         return lines + [""]
 
@@ -279,12 +282,12 @@ class Results:
         return lines + [""]
 
 
-def _ratio(value: float, reference: float) -> str:
-    """`value / reference` marked against the target (n/a when the reference is not > 0)."""
+def _ratio(value: float, reference: float, target: float) -> str:
+    """`value / reference` marked against `target` (n/a when the reference is not > 0)."""
     if reference <= 0:
         return "n/a"
     ratio = value / reference
-    return f"{ratio:.2f}" if ratio <= TARGET_RATIO else f"**{ratio:.2f}** (over)"
+    return f"{ratio:.2f}" if ratio <= target else f"**{ratio:.2f}** (over)"
 
 
 def machine_info() -> dict[str, str]:
@@ -347,7 +350,8 @@ def main(argv: list[str] | None = None) -> None:
         "",
         f"Best of {args.repeats} measurements per variant, garbage collector off while timing. "
         "Overhead = wrapped − bare time per primitive step; ratio = RoutineActionWrapper's "
-        f"overhead / RepeatAction's at the same L (target ≤ {TARGET_RATIO}).",
+        f"overhead / RepeatAction's at the same L (targets ≤ {TARGET_RATIO} with observations "
+        f"off, ≤ {TARGET_RATIO_OBS} with them on).",
         "",
         *sections,
     ])
