@@ -477,7 +477,7 @@ def cmd_experiment_run(args: argparse.Namespace) -> int:
 def cmd_experiment_report(args: argparse.Namespace) -> int:
     from routine_gym.experiments.report import write_report
 
-    for path in write_report(args.out):
+    for path in write_report(args.out, beside=args.beside):
         print(path)
     return 0
 

@@ -11,7 +11,10 @@ Figures 2–6 from the runs `routine-gym experiment run` left in `OUT`.
 - `report.md`: the sweep's budget, the date of its latest finished run, which runs are
   missing, and a table per experiment with the paper's numbers where it gives them;
 - `reference_scores.json`: the scores each game is normalised with (a cache: the random
-  policy's score is played once).
+  policy's score is played once);
+- with `beside=OTHER` (`report OUT --beside OTHER`), the rl experiment at the two budgets of
+  `OUT` and `OTHER` side by side (`budget_comparison`): `budgets_fig2`, `budgets_curves`,
+  `budgets_routines` (`.png` and `.csv`) and its section of `report.md`.
 
 A run's score is its final evaluation's mean return (`eval.mean_return` of `result.json`).
 Scores are normalised per game (`reference.Reference`): human-normalised with the published
@@ -39,6 +42,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from routine_gym.experiments import budget_comparison
 from routine_gym.experiments.folder_lock import lock_holder
 from routine_gym.experiments.reference import (
     REFERENCE_EPISODES,
@@ -90,12 +94,14 @@ def _normalisation_lines(references: Mapping[str, Reference]) -> list[str]:
 def report_files() -> tuple[str, ...]:
     """Every file a report may write into `OUT/report/`; those this report did not write (an
     experiment whose data is gone) are removed, so the folder holds exactly this report."""
-    return (*(f"{stem}.{ext}" for experiment in EXPERIMENTS.values()
-              for stem in experiment.files for ext in ("png", "csv")),
+    stems = [stem for experiment in EXPERIMENTS.values() for stem in experiment.files]
+    return (*(f"{stem}.{ext}" for stem in (*stems, *budget_comparison.FILES)
+              for ext in ("png", "csv")),
             "report.md", "reference_scores.json")
 
 
-def write_report(out: str | Path, *, reps: int = 2000, seed: int = 0) -> list[Path]:
+def write_report(out: str | Path, *, reps: int = 2000, seed: int = 0,
+                 beside: str | Path | None = None) -> list[Path]:
     """Aggregate the sweep in `out` and write `out/report/` (see the module docstring).
 
     The report only reads the sweep folder, so it may be written while a sweep runs there (it
@@ -107,6 +113,8 @@ def write_report(out: str | Path, *, reps: int = 2000, seed: int = 0) -> list[Pa
         out: the folder `routine-gym experiment run --out` wrote.
         reps: bootstrap resamples of each confidence interval.
         seed: seed of the resampling (the same seed, the same intervals).
+        beside: another sweep folder whose rl experiment ran at another budget: the report
+            also compares the two budgets (`budget_comparison`).
 
     Returns:
         The paths written: each experiment's PNG and CSV, `reference_scores.json`, and
@@ -116,7 +124,9 @@ def write_report(out: str | Path, *, reps: int = 2000, seed: int = 0) -> list[Pa
         UsageError: one line naming the file: `out` does not exist, is a file or holds no
             manifest of the six experiments; a manifest, `result.json` or the random-policy
             cache that is not valid JSON or not of the sweep's shape; `out/report` that is a
-            file or cannot be written.
+            file or cannot be written; with `beside`: either folder without an rl experiment
+            of A2C or RAPL-A2C runs, `beside` missing or not a sweep folder, both folders at
+            the same steps.
     """
     out = Path(out)
     if out.exists() and not out.is_dir():
@@ -128,8 +138,9 @@ def write_report(out: str | Path, *, reps: int = 2000, seed: int = 0) -> list[Pa
     folder = out / "report"
     if folder.exists() and not folder.is_dir():
         raise UsageError(f"{folder}: a file, where the report's folder goes; move it away")
+    sides = budget_comparison.load_sides(out, beside) if beside is not None else None
     try:
-        written = _write_report(out, folder, reps, seed)
+        written = _write_report(out, folder, reps, seed, sides)
         for name in report_files():
             stale = folder / name
             if stale not in written and (stale.is_file() or stale.is_symlink()):
@@ -148,7 +159,9 @@ def _sweep_note(out: Path) -> list[str]:
             "flight count as missing.", ""]
 
 
-def _write_report(out: Path, folder: Path, reps: int, seed: int) -> list[Path]:
+def _write_report(out: Path, folder: Path, reps: int, seed: int,
+                  sides: tuple[budget_comparison.Side, budget_comparison.Side] | None
+                  ) -> list[Path]:
     results: dict[str, Mapping[str, Any] | None] = {}
     manifests = {name: load_runs(out, name, results) for name in EXPERIMENTS}
     if all(m is None for m in manifests.values()):
@@ -189,6 +202,8 @@ def _write_report(out: Path, folder: Path, reps: int, seed: int) -> list[Path]:
             continue
         lines += [f"Figure: `{experiment.file}.png`, data: `{experiment.file}.csv`.", ""]
         lines += experiment.section(w, main)
+    if sides is not None:
+        lines += budget_comparison.section(w, *sides, out)
     lines += _normalisation_lines(references)
     atomic_write_text(folder / "report.md", "\n".join(lines).rstrip() + "\n")
     w.written.append(folder / "report.md")

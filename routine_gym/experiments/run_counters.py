@@ -14,18 +14,25 @@ reads them back (`counter_record`) into `result.json`'s `counters`:
 
 The grid is `CURVE_BINS` equal bins of primitive steps from 0 to `total_steps` (bin `b` is
 `(b·w, (b+1)·w]`), the grid of the run's kept training curve.
+
+The report reads them back with `run_counter` (a total or rate of one run), `mean_bins` (a
+binned counter's mean over runs) and `mean_routine_shares` (each routine's binned share).
 """
 
 from __future__ import annotations
 
 import math
+import warnings
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
+from routine_gym.experiments.results import RunRecord
 from routine_gym.experiments.training_curves import CURVE_BINS, curve_bins
 
-__all__ = ["COUNTER_TAG_PREFIXES", "counter_record"]
+__all__ = ["COUNTER_TAG_PREFIXES", "counter_record", "mean_bins", "mean_routine_shares",
+           "run_counter"]
 
 #: The tags the sweep reads for `counter_record`.
 COUNTER_TAG_PREFIXES = ("counters/", "charts/episodic_length")
@@ -145,3 +152,55 @@ def counter_record(scalars: dict[str, _Series], total_steps: int | None = None,
         "episode_length": [_number(v) for v in episode_length],
     }
     return record
+
+
+def run_counter(run: RunRecord, field: str) -> float:
+    """A counter of the run's `result.json` (NaN for a run that predates the counters)."""
+    value = (run.result.get("counters") or {}).get(field)
+    return math.nan if value is None else float(value)
+
+
+def _nanmean_rows(rows: list[list[float | None]]) -> np.ndarray:
+    """The mean over rows of equal length, bin by bin, leaving out None and NaN (NaN where no
+    row has a value)."""
+    values = np.array([[math.nan if v is None else v for v in row] for row in rows],
+                      dtype=np.float64)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a bin no run has: NaN
+        return np.nanmean(values, axis=0)
+
+
+def mean_bins(runs: Sequence[RunRecord], field: str) -> np.ndarray | None:
+    """The mean over runs of a counter's bins (`result.json` counters), NaN where none."""
+    rows = []
+    for run in runs:
+        bins = (run.result.get("counters") or {}).get("bins") or {}
+        values = bins.get(field)
+        if values:
+            rows.append(values)
+    if not rows:
+        return None
+    return _nanmean_rows(rows)
+
+
+def mean_routine_shares(runs: Sequence[RunRecord]) -> np.ndarray | None:
+    """`(routines, bins)`: the mean over runs of the share of decisions that chose each routine
+    in each bin (`bins.shares`); a routine a run does not have counts as missing there, not as
+    0. None when no run has a routine's share (A2C, or runs that predate the counters).
+
+    Example (two runs of one routine and one run of two, over two bins):
+        >>> from pathlib import Path
+        >>> def run(shares):
+        ...     return RunRecord("k", "RAPL-A2C", "g", 1, {}, "main", 4, Path("."),
+        ...                      {"counters": {"bins": {"shares": shares}}})
+        >>> mean_routine_shares([run([[0.25, 0.5]]), run([[0.75, 0.25], [0.125, None]])]).tolist()
+        [[0.5, 0.375], [0.125, nan]]
+    """
+    tables = [((run.result.get("counters") or {}).get("bins") or {}).get("shares") or []
+              for run in runs]
+    count = max((len(t) for t in tables), default=0)
+    if count == 0:
+        return None
+    bins = max(len(row) for t in tables for row in t)
+    return np.vstack([_nanmean_rows([t[k] for t in tables if k < len(t)] or [[None] * bins])
+                      for k in range(count)])

@@ -45,6 +45,32 @@ class MeanCurve(NamedTuple):
     runs: np.ndarray  # runs with a value in each bin
 
 
+def mean_curve(runs: Sequence[RunRecord], total: int, no_log: list[str] | None = None
+               ) -> MeanCurve | None:
+    """The runs' binned training curves (`run_curve` on the grid `(0, total]`) as their mean and
+    sample std over seeds in each bin; None when no run logged an episode. Each run without
+    one is described in `no_log`, when given."""
+    binned = []
+    x = None
+    for run in runs:
+        curve = run_curve(run, total)
+        if curve is None:
+            if no_log is not None:
+                no_log.append(run.describe())
+            continue
+        x, values = curve
+        binned.append(values)
+    if not binned:
+        return None
+    values = np.vstack(binned)
+    count = np.sum(np.isfinite(values), axis=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN leading bins
+        mean = np.nanmean(values, axis=0)
+        std = np.where(count > 1, np.nanstd(values, axis=0, ddof=1), 0.0)
+    return MeanCurve(x, mean, np.where(count > 0, std, np.nan), count)
+
+
 def add_runs(b: Builder) -> None:
     """The curves' methods on each game and seed."""
     budget = b.budget
@@ -63,30 +89,16 @@ def section(w: Writer, runs: list[RunRecord]) -> list[str]:
     methods = ordered(groups, METHODS)
     games = sorted({r.env_id for rs in groups.values() for r in rs})
     curves: dict[tuple[str, str], MeanCurve] = {}
-    no_log = []
+    no_log: list[str] = []
     for g in games:
         for m in methods:
             group = [r for r in groups[m] if r.env_id == g]
             if not group:
                 continue
             # One grid per game and method: the budget of its runs (the manifest's steps).
-            total = max(r.steps for r in group)
-            binned = []
-            for run in group:
-                curve = run_curve(run, total)
-                if curve is None:
-                    no_log.append(run.describe())
-                    continue
-                x, values = curve
-                binned.append(values)
-            if binned:
-                values = np.vstack(binned)
-                count = np.sum(np.isfinite(values), axis=0)
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN leading bins
-                    mean = np.nanmean(values, axis=0)
-                    std = np.where(count > 1, np.nanstd(values, axis=0, ddof=1), 0.0)
-                curves[g, m] = MeanCurve(x, mean, np.where(count > 0, std, np.nan), count)
+            curve = mean_curve(group, max(r.steps for r in group), no_log)
+            if curve is not None:
+                curves[g, m] = curve
     w.csv(FILE, ("env_id", "method", "step", "mean_return", "std_return", "runs"),
           [(g, m, float(x[i]), mean[i], std[i], int(count[i]))
            for (g, m), (x, mean, std, count) in curves.items() for i in range(len(x))])

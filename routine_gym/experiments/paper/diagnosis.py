@@ -19,8 +19,6 @@ per decision, from `result.json`'s counters).
 from __future__ import annotations
 
 import math
-import warnings
-from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -28,6 +26,8 @@ import numpy as np
 from routine_gym.experiments.drawing import COLOURS, figure, game_labels
 from routine_gym.experiments.experiment import Experiment
 from routine_gym.experiments.results import RunRecord
+from routine_gym.experiments.run_counters import mean_bins as _binned
+from routine_gym.experiments.run_counters import run_counter as _counter
 from routine_gym.experiments.specs import Builder, Entry
 from routine_gym.experiments.statistics import standard_error
 from routine_gym.experiments.writing import Writer, num, pct, table
@@ -124,27 +124,6 @@ def verdict(means: dict[str, float], errors: dict[str, float]) -> str:
     if found:
         return "; ".join(found)
     return "none of these (neither closes the gap; routine content: see Fig. 6)"
-
-
-def _binned(runs: Sequence[RunRecord], field: str) -> np.ndarray | None:
-    """The mean over runs of a counter's bins (`result.json` counters), NaN where none."""
-    rows = []
-    for run in runs:
-        bins = (run.result.get("counters") or {}).get("bins") or {}
-        values = bins.get(field)
-        if values:
-            rows.append([math.nan if v is None else v for v in values])
-    if not rows:
-        return None
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # a bin no run has: NaN
-        return np.nanmean(np.array(rows, dtype=np.float64), axis=0)
-
-
-def _counter(run: RunRecord, field: str) -> float:
-    """A counter of the run's `result.json` (NaN for a run that predates the counters)."""
-    value = (run.result.get("counters") or {}).get(field)
-    return math.nan if value is None else float(value)
 
 
 def _count(run: RunRecord, field: str) -> int | float:

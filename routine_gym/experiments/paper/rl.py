@@ -54,8 +54,10 @@ def add_runs(b: Builder) -> None:
                 diagnosis.authors_run(b, env_id, seed)
 
 
-def _relative(rapl: Sequence[float], a2c: Sequence[float]) -> tuple[float, float]:
-    """(S_R − S_A)/|S_A| and its error bar, the standard error of S_R over seeds / |S_A|."""
+def relative(rapl: Sequence[float], a2c: Sequence[float]) -> tuple[float, float]:
+    """(S_R − S_A)/|S_A| and its error bar, the standard error of S_R over seeds / |S_A|, from
+    the final scores of RAPL's runs and A2C's on one game; (NaN, NaN) where S_A is 0 or too
+    close to 0 (the budget comparison draws its bars with it too)."""
     from routine_gym.metrics import relative_performance
 
     s_a = float(np.mean(a2c))
@@ -79,7 +81,7 @@ def section(w: Writer, runs: list[RunRecord]) -> list[str]:
     for g in games:
         s_a = [r.score for r in a2c if r.env_id == g]
         s_r = [r.score for r in rapl if r.env_id == g]
-        rel, err = _relative(s_r, s_a)
+        rel, err = relative(s_r, s_a)
         rows.append(GameBar(g, len(s_a), len(s_r), float(np.mean(s_a)), float(np.mean(s_r)),
                             100 * rel, 100 * err))
     rows.sort(key=lambda row: -row.relative_pct if math.isfinite(row.relative_pct) else math.inf)
@@ -131,7 +133,7 @@ def _authors_lines(authors: list[RunRecord], a2c: list[RunRecord]) -> list[str]:
     for g in sorted({r.env_id for r in authors} & {r.env_id for r in a2c}):
         s_a = [r.score for r in a2c if r.env_id == g]
         s_x = [r.score for r in authors if r.env_id == g]
-        rel, err = _relative(s_x, s_a)
+        rel, err = relative(s_x, s_a)
         rows.append((g, len(s_x), num(float(np.mean(s_a))), num(float(np.mean(s_x))),
                      pct(rel), pct(err)))
     return [f"{AUTHORS} (`--authors`, the diagnosis experiment's run) over A2C, as above:", "",
