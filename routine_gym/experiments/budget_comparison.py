@@ -282,7 +282,7 @@ def _draw_fig2(w: Writer, games: list[str], sides: Sequence[Side],
 
     series = [(m, s) for m in ROUTINE_METHODS if _present(sides, m) for s in sides]
     labels = game_labels(games)
-    fig = figure(max(7.5, 0.45 * len(games) * len(series) + 2.5), 4.8)
+    fig = figure(max(8.5, 0.45 * len(games) * len(series) + 2.5), 4.8)
     ax = fig.subplots()
     width = 0.8 / len(series)
     x = np.arange(len(games))
@@ -304,13 +304,16 @@ def _draw_fig2(w: Writer, games: list[str], sides: Sequence[Side],
                 ax.text(xi, 0.0, f" {text}", rotation=90, ha="center", va="bottom",
                         fontsize=7, color="#555555")
     ax.axhline(0.0, color="black", linewidth=0.8)
+    bottom, top = ax.get_ylim()
+    ax.set_ylim(bottom, max(top, 0.2 * (top - bottom)))  # room above 0 for "no runs"
     ax.set_xticks(x, [labels[g] for g in games])
     ax.set_ylabel("relative performance (S − S_A)/|S_A| (%)")
     ax.set_xlabel("game (error bar: standard error of S over seeds / |S_A|; hatched: the "
                   "shorter budget)")
     counts = [_same_or_better(rows, games, s) for s in sides]
-    ax.set_title("RAPL-A2C over A2C at two budgets: same or better on "
-                 + ", ".join(f"{k} of {n} games at {_tex(s.steps)}"
+    ax.set_title("RAPL-A2C same or better than A2C on "
+                 + ", ".join(f"{k} of {n} games at {_tex(s.steps)}" if n else
+                             f"no game yet at {_tex(s.steps)}"
                              for (k, n), s in zip(counts, sides, strict=True)), fontsize=10)
     handles = [Patch(facecolor=colour(m, diagnosis.VARIANT_COLOURS),
                      alpha=1.0 if s is sides[-1] else 0.45,
@@ -365,8 +368,11 @@ def update_marks(curve: _Curve) -> list[tuple[int, float, float]]:
 
 
 def _thousands(value: float) -> str:
+    """Updates as read in a figure: `730`, `7.3k`, `125k`; – for none."""
     if not math.isfinite(value):
         return "–"
+    if value < 1000:
+        return f"{value:.0f}"
     return f"{value / 1000:.1f}k" if value < 100_000 else f"{value / 1000:.0f}k"
 
 
@@ -418,7 +424,7 @@ def _curves(w: Writer, games: list[str], sides: Sequence[Side]) -> None:
         # A legend of text only, so matplotlib puts it where it hides the least of the curves.
         ax.legend(handles=[Line2D([], [], linestyle="") for _ in notes], labels=notes,
                   title="updates made", title_fontsize=7, fontsize=7, loc="best",
-                  handlelength=0, handletextpad=0, framealpha=0.85)
+                  handlelength=0, handletextpad=0, framealpha=0.6)
     for ax in axes[len(games):]:
         ax.set_visible(False)
     methods = [m for m in METHODS if _present(sides, m)]
@@ -494,8 +500,8 @@ def _routines(w: Writer, games: list[str], sides: Sequence[Side]) -> None:
     handles = [Patch(color=ROUTINE_COLOURS[k], label=f"routine {k + 1}") for k in range(most)]
     handles.append(Patch(color=PRIMITIVE_COLOUR, label="primitive actions"))
     fig.legend(handles=handles, loc="outside lower center", ncols=len(handles), fontsize=8)
-    fig.suptitle("Routine usage over training: the share of decisions that chose each routine "
-                 "(bottom) or a primitive action (top), mean over seeds", fontsize=10)
+    fig.suptitle("Routine usage over training (mean over seeds): the share of decisions that "
+                 "chose\neach routine (bottom) or a primitive action (top)", fontsize=10)
     w.png(fig, ROUTINES)
 
 
@@ -581,9 +587,11 @@ def _lines(games: list[str], sides: Sequence[Side], rows: dict[tuple[str, int], 
     lines += table(header, body)
     counts = [_same_or_better(rows, games, s) for s in sides]
     lines += ["**RAPL-A2C same or better than A2C on "
-              + " and ".join(f"{k} of {n} games at {s.label} steps"
+              + " and ".join(f"{k} of {n} games at {s.label} steps" if n else
+                             f"no game yet at {s.label} steps"
                              for (k, n), s in zip(counts, sides, strict=True))
-              + "** (games without finished runs of both at a budget are not counted).", ""]
+              + "** (a game counts at a budget once A2C and RAPL-A2C have finished runs "
+              "there; *no runs* in the table: not yet).", ""]
     changes = []
     for g in games:
         before, after = rows[g, short.steps], rows[g, long.steps]
