@@ -1,0 +1,572 @@
+"""RAPL-PPO, plain PPO and the MacroAction baseline in one CleanRL-style file (SPEC §5).
+
+    python algos/rapl_ppo.py --env-id ALE/Qbert-v5                  # RAPL-PPO, shipped demo
+    python algos/rapl_ppo.py --env-id ALE/Qbert-v5 --mode ppo       # plain PPO (ppo_atari.py)
+    python algos/rapl_ppo.py --env-id ALE/Qbert-v5 --mode macro     # routines as black boxes
+
+CleanRL's PPO (`ppo_atari.py`: clipped surrogate, clipped value loss, entropy bonus, minibatch
+epochs, advantage normalisation, learning-rate annealing, gradient clipping, Adam) over the
+action space `Discrete(|A| + K)` of `rapl_a2c.py`: the primitive actions plus K routines mined
+from one demonstration. A rollout holds N decisions per env; decision i at primitive time t_i
+runs a routine of executed length ℓ_i, and RAPL uses (`routine_gym.ppo`)
+
+    R_i = Σ_{τ=t_i}^{t_i+ℓ_i-1} γ^{τ-t_i} r_τ,   Γ_i = γ^{ℓ_i}                  (routine reward)
+    δ_i = R_i + Γ_i V(s_{t_{i+1}}) − V(s_{t_i}),  A_i = δ_i + Γ_i λ^{ℓ_i} A_{i+1}   (SMDP GAE)
+    G_{i,j} = Σ_{m≥j} γ^{m-j} r_m + γ^k [(1 − λ^k) V(s_{t_{i+1}}) + λ^k G_{i+1}]   (A_prim)
+    L = L_clip + λ_value (L_V + λ_prim L_V,prim) − λ_entropy H
+
+λ decays per primitive step, as γ does: across a routine of ℓ steps the trace falls by
+(γλ)^ℓ, not γ^ℓ·λ. That is the primitive-level λ-return in which the bootstraps that would
+fall inside a routine (where no decision is made) are carried on to its end, so the
+advantage's bias-variance trade-off spans the same game time however long the routines are;
+with one λ per decision an agent using routines would get ever more Monte-Carlo advantages.
+With every ℓ = 1 this is CleanRL's GAE exactly. A_prim trains the critic at every primitive
+state *inside* a routine (k = ℓ_i − j steps before its end) on the λ-return from there, the
+same mixture at the routine's end as the decision's own target; with λ = 1 these are
+RAPL-A2C's targets (`routine_gym.returns.primitive_returns`). Its loss is clipped like the
+value loss, against the values of those states before the update. `--mode macro` treats
+routines as black boxes (summed reward, one γ and one λ per decision, no A_prim); `--mode ppo`
+has no routines.
+
+Defaults per env family (flags left unset): Atari as CleanRL's `ppo_atari.py`, Procgen as its
+`ppo_procgen.py` (IMPALA CNN), MinAtar as gymnax-blines' MinAtar PPO (with γ 0.99, the
+MinAtar paper's and `rapl_a2c.py`'s), any other env as CleanRL's `ppo.py` (`FAMILY_DEFAULTS`).
+Logged steps count primitive agent steps; the run's decisions, updates, steps per decision and
+routine shares are logged under `counters/` and `--budget-unit decisions` counts the budget in
+decisions, as in `rapl_a2c.py`, whose run set-up, checkpoints, `--resume` and evaluation this
+script shares.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+import warnings
+from dataclasses import dataclass
+from typing import Literal
+
+import gymnasium as gym
+import numpy as np
+import torch
+import torch.nn as nn
+from torch.distributions.categorical import Categorical
+
+import routine_gym
+from routine_gym.envs import profile_for
+from routine_gym.envs.factory import make_primitive_env, make_vector_env
+from routine_gym.networks import ObservationEncoder, layer_init
+from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent
+from routine_gym.plumbing.loading import load_demo
+from routine_gym.plumbing.run import (
+    Every,
+    eval_env_kwargs,
+    level_env_kwargs,
+    run_script,
+    start_run,
+    train_env_kwargs,
+)
+from routine_gym.ppo import (
+    clipped_policy_loss,
+    clipped_value_loss,
+    inner_lambda_returns,
+    normalize_advantages,
+    routine_trace_decay,
+    smdp_gae,
+)
+from routine_gym.returns import (
+    critic_loss,
+    macro_reward_and_discount,
+    routine_reward_and_discount,
+)
+from routine_gym.wrapper import merge_final
+
+
+@dataclass
+class Args:
+    exp_name: str = os.path.basename(__file__)[: -len(".py")]
+    """the name of this experiment"""
+    seed: int = 1
+    """seed of the experiment"""
+    torch_deterministic: bool = True
+    """if toggled, `torch.backends.cudnn.deterministic=True`"""
+    cuda: bool = False
+    """if toggled, use CUDA when available (the CPU is the default)"""
+    track: bool = False
+    """if toggled, also log the run to Weights & Biases (TensorBoard is always written)"""
+    wandb_project_name: str = "routine-gym"
+    """the W&B project of --track"""
+    wandb_entity: str | None = None
+    """the W&B entity (team) of --track (default: your W&B default entity)"""
+    capture_video: bool = False
+    """whether to capture videos of the agent (in `videos/`)"""
+
+    # Algorithm (None: the env family's default, FAMILY_DEFAULTS)
+    env_id: str = "ALE/Qbert-v5"
+    """the env id: `ALE/*-v5`, `*NoFrameskip-v4`, `procgen/CoinRun-v0`, `MinAtar/*` or any
+    discrete env"""
+    mode: Literal["rapl", "ppo", "macro"] = "rapl"
+    """rapl: RAPL-PPO; ppo: plain PPO on primitives; macro: the MacroAction baseline"""
+    total_timesteps: int = 10_000_000
+    """total primitive agent steps of the experiment (decisions with --budget-unit decisions)"""
+    budget_unit: Literal["steps", "decisions"] = "steps"
+    """what --total-timesteps, the learning-rate schedule and --checkpoint-every count:
+    primitive agent steps, or decisions (agent calls)"""
+    learning_rate: float | None = None
+    """the learning rate of the Adam optimizer (Atari 2.5e-4, Procgen 5e-4, MinAtar 5e-4,
+    others 2.5e-4)"""
+    anneal_lr: bool = True
+    """linear decay of the learning rate to 0 (CleanRL's ppo_procgen.py keeps it constant:
+    --no-anneal-lr)"""
+    num_envs: int | None = None
+    """the number of parallel environments (Atari 8, Procgen 64, MinAtar 64, others 4)"""
+    num_steps: int | None = None
+    """decisions per environment per rollout, N (Atari 128, Procgen 256, MinAtar 128,
+    others 128)"""
+    gamma: float | None = None
+    """the discount factor γ per primitive step (Procgen 0.999, others 0.99)"""
+    gae_lambda: float = 0.95
+    """the λ of generalised advantage estimation, per primitive step"""
+    num_minibatches: int | None = None
+    """the number of minibatches per epoch (Atari 4, Procgen 8, MinAtar 8, others 4)"""
+    update_epochs: int | None = None
+    """the number of epochs over each rollout (Atari 4, Procgen 3, MinAtar 4, others 4)"""
+    norm_adv: bool = True
+    """normalise the advantages in each minibatch"""
+    clip_coef: float | None = None
+    """the surrogate clipping coefficient ε, also the value clipping range (Atari 0.1, others
+    0.2)"""
+    clip_vloss: bool = True
+    """clip the value losses (decision states and, RAPL, the states inside routines)"""
+    ent_coef: float = 0.01
+    """coefficient of the entropy bonus (λ_entropy)"""
+    vf_coef: float = 0.5
+    """coefficient of the value loss (λ_value)"""
+    prim_coef: float = 1.0
+    """coefficient of the primitive-level value loss (λ_prim), RAPL only"""
+    max_grad_norm: float = 0.5
+    """the maximum norm for gradient clipping"""
+    target_kl: float | None = None
+    """stop a rollout's epochs early once the approximate KL exceeds this (None: never)"""
+    reward_scale: float = 1.0
+    """multiply each primitive reward by this for learning (after Atari's sign clipping); the
+    logged returns stay the game's score"""
+    async_envs: bool = False
+    """step the environments in subprocesses (AsyncVectorEnv) instead of in this process"""
+
+    # Routines
+    demo: str | None = None
+    """demo to mine routines from (default: the shipped demo of the env in demos/)"""
+    routine_library: str | None = None
+    """a routine library JSON to use (its best K) instead of mining a demo"""
+    num_routines: int = 3
+    """K, the number of routines to mine"""
+    length_weight: float = 0.1
+    """λ_length in the routine score f + λ·len"""
+    alpha: int = 2
+    """Levenshtein distance under which similar routines are pruned"""
+    proposer: Literal["full", "random", "enumerate", "random-fetch", "repeat"] = "full"
+    """full: Sequitur (the paper's model); the others are the discovery ablations"""
+    min_routine_length: int = 2
+    """ignore routine candidates shorter than this"""
+    max_routine_length: int = 64
+    """ignore routine candidates longer than this (the wrapper pads every step to the longest)"""
+    selection: Literal["paper", "authors"] = "paper"
+    """the routine score and pruning: f + λ·len and Levenshtein pruning (paper), or the
+    authors' code's (SPEC §5b)"""
+
+    # Procgen
+    num_levels: int = 100
+    """Procgen: number of training levels"""
+    start_level: int = 0
+    """Procgen: first training level"""
+    distribution_mode: Literal["easy", "hard"] = "easy"
+    """Procgen: level difficulty for training"""
+    eval_distribution_mode: Literal["easy", "hard"] = "easy"
+    """Procgen: difficulty of the (unseen) evaluation levels"""
+    extra_evals: tuple[Literal["train", "easy", "hard"], ...] = ()
+    """Procgen: more evaluations after the main one, each in eval-NAME.json: `train` (the
+    training levels), `easy` or `hard` (unseen levels of that difficulty)"""
+
+    # Running it
+    save_model: bool = False
+    """save the final model to runs/{run_name}/model.pt"""
+    checkpoint_every: int = 0
+    """save a resumable checkpoint every this many primitive steps (decisions with
+    --budget-unit decisions; 0: never)"""
+    resume: str | None = None
+    """checkpoint file (or run folder) to resume a killed run from, with its saved settings
+    (a --total-timesteps other than the default sets a new budget)"""
+    eval_episodes: int = 10
+    """episodes to evaluate the final policy on (0 disables); results in eval.json"""
+    record_demo: str | None = None
+    """record the best of --demo-episodes episodes of the trained agent to this demo file"""
+    demo_episodes: int = 10
+    """episodes to pick the best demo from"""
+    log_every: int = 10_000
+    """print a progress line every this many primitive steps (decisions with --budget-unit
+    decisions)"""
+    run_dir: str = "runs"
+    """where run folders go"""
+    torch_threads: int = 0
+    """torch CPU threads (0: torch's default, fastest on an idle machine); 1 is faster when
+    other jobs share the CPU"""
+
+
+#: The defaults of the flags left unset (None), by env family: CleanRL's `ppo_atari.py`,
+#: `ppo_procgen.py` and `ppo.py` (every other family: MiniQbert, CartPole, a user's env), and
+#: for MinAtar gymnax-blines' MinAtar PPO configs (64 envs × 128 steps, 8 minibatches, 4
+#: epochs, Adam 5e-4, ε 0.2) with γ 0.99 instead of their 0.999.
+FAMILY_DEFAULTS: dict[str, dict[str, float | int]] = {
+    "atari": dict(num_envs=8, num_steps=128, num_minibatches=4, update_epochs=4,
+                  learning_rate=2.5e-4, clip_coef=0.1, gamma=0.99),
+    "procgen": dict(num_envs=64, num_steps=256, num_minibatches=8, update_epochs=3,
+                    learning_rate=5e-4, clip_coef=0.2, gamma=0.999),
+    "minatar": dict(num_envs=64, num_steps=128, num_minibatches=8, update_epochs=4,
+                    learning_rate=5e-4, clip_coef=0.2, gamma=0.99),
+    "other": dict(num_envs=4, num_steps=128, num_minibatches=4, update_epochs=4,
+                  learning_rate=2.5e-4, clip_coef=0.2, gamma=0.99),
+}
+
+#: What `eval.json` calls each mode's method.
+METHODS = {"rapl": "rapl-ppo", "ppo": "ppo", "macro": "macro-ppo"}
+
+
+def family_defaults(args: Args) -> None:
+    """Fill the flags left unset (None) with the env family's defaults (a new run's; a resumed
+    run keeps the values it was saved with). An env id whose module cannot be imported is left
+    to the run's env check, which names it."""
+    try:
+        family = profile_for(args.env_id).family
+    except ImportError:
+        return
+    for field, value in FAMILY_DEFAULTS.get(family, FAMILY_DEFAULTS["other"]).items():
+        if getattr(args, field) is None:
+            setattr(args, field, value)
+
+
+def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
+    """The rules between flags (each flag's own domain is in `plumbing.arguments.DOMAINS`)."""
+    batch = (args.num_envs or 1) * (args.num_steps or 1)
+    return [("min_routine_length", args.min_routine_length <= args.max_routine_length,
+             f"≤ --max-routine-length ({args.max_routine_length})"),
+            ("num_minibatches", args.num_minibatches is None or args.num_minibatches <= batch,
+             f"≤ --num-envs × --num-steps ({batch})"),
+            ("target_kl", args.target_kl is None or args.target_kl > 0, "> 0"),
+            ("selection", args.mode != "ppo" or args.selection == "paper",
+             "paper with --mode ppo (no routines)")]
+
+
+class Agent(nn.Module):
+    def __init__(self, env_id: str, obs_space: gym.spaces.Box, num_actions: int) -> None:
+        super().__init__()
+        self.encoder = ObservationEncoder(env_id, obs_space.shape, obs_space.dtype)
+        self.actor = layer_init(nn.Linear(self.encoder.num_features, num_actions), std=0.01)
+        self.critic = layer_init(nn.Linear(self.encoder.num_features, 1), std=1.0)
+
+    def get_value(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.critic(self.encoder(obs)).squeeze(-1)
+
+    def get_action_and_value(self, obs: torch.Tensor, action: torch.Tensor | None = None):
+        hidden = self.encoder(obs)
+        dist = Categorical(logits=self.actor(hidden))
+        if action is None:
+            action = dist.sample()
+        return action, dist.log_prob(action), dist.entropy(), self.critic(hidden).squeeze(-1)
+
+    def act(self, obs: torch.Tensor):
+        """Sampled actions, their log-probabilities and the states' values (no entropy)."""
+        hidden = self.encoder(obs)
+        dist = Categorical(logits=self.actor(hidden))
+        action = dist.sample()
+        return action, dist.log_prob(action), self.critic(hidden).squeeze(-1)
+
+    def evaluate(self, obs: torch.Tensor, action: torch.Tensor):
+        """One pass over a minibatch: log-probabilities and entropies of the `len(action)`
+        first states' actions, and the values of all `len(obs)` states (the rest: states
+        inside routines)."""
+        hidden = self.encoder(obs)
+        dist = Categorical(logits=self.actor(hidden[: len(action)]))
+        return dist.log_prob(action), dist.entropy(), self.critic(hidden).squeeze(-1)
+
+
+#: What a checkpoint of this script holds (`--resume` checks for each).
+CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "decisions", "rng", "args",
+                   "library")
+
+
+def action_meanings(args: Args) -> list[str] | None:
+    """The primitive actions' names of the training env (None when it has none)."""
+    probe = make_primitive_env(args.env_id, **train_env_kwargs(args))
+    meanings = getattr(probe.unwrapped, "get_action_meanings", lambda: None)()
+    probe.close()
+    return meanings
+
+
+def values_of(agent: Agent, states: np.ndarray, device: torch.device,
+              chunk: int = 4096) -> np.ndarray:
+    """V(s) of many states without a graph, in chunks (the inner states of a long rollout)."""
+    out = []
+    with torch.inference_mode():
+        for start in range(0, len(states), chunk):
+            batch = torch.as_tensor(states[start : start + chunk], device=device)
+            out.append(agent.get_value(batch).cpu().numpy())
+    return np.concatenate(out) if out else np.zeros(0, dtype=np.float32)
+
+
+def main(args: Args) -> None:
+    # An explicit --total-timesteps on --resume sets a new budget: higher to train on, or at
+    # most the steps done to go straight to evaluation and demo recording.
+    run = start_run(args, "rapl_ppo.py", CHECKPOINT_KEYS, lower_budget=True,
+                    extra_checks=extra_checks, preset=family_defaults)
+    args, device, writer = run.args, run.device, run.writer
+    for levels in args.extra_evals:
+        level_env_kwargs(args, levels)  # refused now, not after training
+
+    # Routines: mined from the demo (or loaded), printed with action names, saved with the run.
+    demo, library = None, None
+    if args.mode != "ppo":
+        resumed = run.checkpoint is not None and run.checkpoint["library"]
+        if args.routine_library is None and not resumed:
+            demo, args.demo = load_demo(args.env_id, args.demo, purpose=f"--mode {args.mode}")
+        library = run.routines(demo, meanings=lambda: action_meanings(args),
+                               env_kwargs=train_env_kwargs(args), required=f"--mode {args.mode}")
+
+    # Env setup: same-step autoreset, so the step that ends an episode returns the reset obs.
+    rapl = args.mode == "rapl"
+    envs = make_vector_env(args.env_id, args.num_envs, args.seed, routines=library,
+                           training=True, record_observations=rapl,
+                           env_kwargs=train_env_kwargs(args), capture_video=args.capture_video,
+                           run_name=run.name, async_envs=args.async_envs)
+    assert isinstance(envs.single_action_space, gym.spaces.Discrete), "only discrete actions"
+    num_actions = int(envs.single_action_space.n)
+    num_routines = len(library) if library is not None else 0
+    num_primitives = num_actions - num_routines
+    max_len = max(library.lengths) if library is not None else 1
+
+    agent = Agent(args.env_id, envs.single_observation_space, num_actions).to(device)
+    optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5,
+                                 foreach=True)
+
+    # Rollout storage, time-major: [decision, env] and [decision, step in routine, env].
+    n, e = args.num_steps, args.num_envs
+    batch_size = n * e
+    obs_shape = envs.single_observation_space.shape
+    obs = np.zeros((n, e, *obs_shape), dtype=envs.single_observation_space.dtype)
+    actions = np.zeros((n, e), dtype=np.int64)
+    logprobs = np.zeros((n, e), dtype=np.float32)
+    values = np.zeros((n, e), dtype=np.float32)
+    step_rewards = np.zeros((n, max_len, e), dtype=np.float64)
+    lengths = np.ones((n, e), dtype=np.int64)
+    terminated = np.zeros((n, e), dtype=bool)
+    truncated = np.zeros((n, e), dtype=bool)
+    final_values = np.zeros((n, e), dtype=np.float64)
+    # Step j ≥ 1 of a routine starts from the observation after step j − 1; for each decision
+    # the [step, env] pairs inside routines, in the order of `inside` below.
+    inner_steps = np.arange(1, max_len)[:, None]
+
+    # What a checkpoint holds; a resumed run starts where its checkpoint left off.
+    global_step, iteration, decisions = run.resume(
+        {"model": agent, "optimizer": optimizer}, global_step=0, iteration=0, decisions=0,
+        count="decisions" if args.budget_unit == "decisions" else "global_step",
+        extra={"library": json.dumps(library.to_dict()) if library is not None else ""})
+
+    # The env is reset with a seed that depends on where the run is, so a resumed run does not
+    # replay the episodes it already saw.
+    next_obs, _ = envs.reset(seed=args.seed + global_step)
+    start_time, start_step, start_decisions = time.time(), global_step, decisions
+    logs = Every(args.log_every, start=budget_spent(args.budget_unit, global_step, decisions))
+    routine_counts = np.zeros(num_actions, dtype=np.int64)
+    counts = Counters(writer, num_primitives, num_routines)
+    recent_returns: list[float] = []
+
+    while (spent := budget_spent(args.budget_unit, global_step, decisions)) \
+            < args.total_timesteps:
+        iteration += 1
+        if args.anneal_lr:
+            frac = max(1.0 - spent / args.total_timesteps, 0.0)
+            optimizer.param_groups[0]["lr"] = frac * args.learning_rate
+
+        inner_obs: list[np.ndarray] = []
+        for step in range(n):
+            obs[step] = next_obs
+            with torch.inference_mode():
+                action_t, logprob_t, value_t = agent.act(torch.as_tensor(next_obs, device=device))
+            action = action_t.cpu().numpy()
+            actions[step], logprobs[step] = action, logprob_t.cpu().numpy()
+            values[step] = value_t.cpu().numpy()
+            next_obs, reward, term, trunc, info = envs.step(action)
+            done = term | trunc
+            terminated[step], truncated[step] = term, trunc
+
+            if args.mode == "ppo":
+                step_rewards[step, 0] = reward
+            else:
+                lengths[step] = merge_final(info, "routine_length", done)
+                step_rewards[step] = merge_final(info, "routine_rewards", done).T
+                if rapl and max_len > 1:
+                    inner = merge_final(info, "routine_observations", done)
+                    inside_now = inner_steps < lengths[step][None, :]  # [L-1, E]
+                    if inside_now.any():
+                        inner_obs.append(np.swapaxes(inner[:, : max_len - 1], 0, 1)[inside_now])
+            if args.reward_scale != 1.0:
+                step_rewards[step] *= args.reward_scale
+            if trunc.any():  # bootstrap a cut episode from the value of its last observation
+                final_obs = np.stack([info["final_obs"][i] for i in np.flatnonzero(trunc)])
+                with torch.inference_mode():
+                    v = agent.get_value(torch.as_tensor(final_obs, device=device))
+                final_values[step, trunc] = v.cpu().numpy()
+
+            global_step += int(lengths[step].sum())
+            decisions += e
+            routine_counts += np.bincount(action, minlength=num_actions)
+            counts.add(action, lengths[step].sum())
+            if done.any() and "episode" in info.get("final_info", {}):
+                final = info["final_info"]
+                for i in np.flatnonzero(final["_episode"]):
+                    ret, length = float(final["episode"]["r"][i]), int(final["episode"]["l"][i])
+                    recent_returns.append(ret)
+                    writer.add_scalar("charts/episodic_return", ret, global_step)
+                    writer.add_scalar("charts/episodic_length", length, global_step)
+
+        # Advantages. RAPL: discounted routine reward, γ^ℓ and a trace decay of λ^ℓ; PPO and
+        # MacroAction: summed reward, one γ and one λ per decision (PPO's routines: length 1).
+        with torch.inference_mode():
+            bootstrap = agent.get_value(torch.as_tensor(next_obs, device=device)).cpu().numpy()
+        if rapl:
+            rewards, discounts = routine_reward_and_discount(step_rewards, lengths, args.gamma)
+            traces = routine_trace_decay(lengths, args.gae_lambda)
+        else:
+            rewards, discounts = macro_reward_and_discount(step_rewards, lengths, args.gamma)
+            traces = np.full(lengths.shape, args.gae_lambda)
+        advantages, returns = smdp_gae(rewards, discounts, traces, values, terminated, truncated,
+                                       final_values, bootstrap)
+
+        # A_prim (RAPL): the states inside routines, their λ-returns and their values now.
+        inner_states = np.concatenate(inner_obs) if inner_obs else obs[:0, 0]
+        num_inner = len(inner_states)
+        if num_inner:
+            prim = inner_lambda_returns(step_rewards, lengths, terminated, truncated,
+                                        final_values, values, returns, bootstrap, args.gamma,
+                                        args.gae_lambda)
+            inside = inner_steps[None] < lengths[:, None, :]  # [N, L-1, E]
+            i_states = torch.as_tensor(inner_states, device=device)
+            i_returns = torch.as_tensor(prim[:, 1:][inside], dtype=torch.float32, device=device)
+            i_values = torch.as_tensor(values_of(agent, inner_states, device), device=device)
+
+        # Flatten the batch.
+        b_obs = torch.as_tensor(obs.reshape(-1, *obs_shape), device=device)
+        b_actions = torch.as_tensor(actions.reshape(-1), device=device)
+        b_logprobs = torch.as_tensor(logprobs.reshape(-1), device=device)
+        b_advantages = torch.as_tensor(advantages.reshape(-1), dtype=torch.float32,
+                                       device=device)
+        b_returns = torch.as_tensor(returns.reshape(-1), dtype=torch.float32, device=device)
+        b_values = torch.as_tensor(values.reshape(-1), device=device)
+
+        # Optimise the policy and the value network: epochs of shuffled minibatches; each
+        # minibatch also takes its share of the states inside routines (RAPL).
+        b_inds = np.arange(batch_size)
+        clipfracs = []
+        prim_loss = torch.zeros((), device=device)
+        for _ in range(args.update_epochs):
+            np.random.shuffle(b_inds)
+            # CleanRL's consecutive slices of the shuffled indices (sizes differing by at most
+            # one where the batch does not divide), and as many slices of the inner states.
+            inner_parts = (np.array_split(np.random.permutation(num_inner), args.num_minibatches)
+                           if num_inner else [()] * args.num_minibatches)
+            for part, inner_part in zip(np.array_split(b_inds, args.num_minibatches),
+                                        inner_parts, strict=True):
+                mb_inds = torch.as_tensor(part, device=device)
+                mb_obs = b_obs[mb_inds]
+                mb_inner = None
+                if len(inner_part):
+                    mb_inner = torch.as_tensor(inner_part, device=device)
+                    mb_obs = torch.cat([mb_obs, i_states[mb_inner]])
+                newlogprob, entropy, all_values = agent.evaluate(mb_obs, b_actions[mb_inds])
+                newvalue = all_values[: len(mb_inds)]
+                logratio = newlogprob - b_logprobs[mb_inds]
+                with torch.no_grad():
+                    ratio = logratio.exp()
+                    old_approx_kl = (-logratio).mean()
+                    approx_kl = ((ratio - 1) - logratio).mean()
+                    clipfracs.append(((ratio - 1.0).abs() > args.clip_coef).float().mean().item())
+
+                mb_advantages = b_advantages[mb_inds]
+                if args.norm_adv and len(mb_inds) > 1:
+                    mb_advantages = normalize_advantages(mb_advantages)
+                pg_loss = clipped_policy_loss(mb_advantages, newlogprob, b_logprobs[mb_inds],
+                                              args.clip_coef)
+                v_loss = clipped_value_loss(newvalue, b_values[mb_inds], b_returns[mb_inds],
+                                            args.clip_coef, args.clip_vloss)
+                if mb_inner is not None:
+                    prim_loss = clipped_value_loss(all_values[len(mb_inds):], i_values[mb_inner],
+                                                   i_returns[mb_inner], args.clip_coef,
+                                                   args.clip_vloss)
+                else:
+                    prim_loss = torch.zeros((), device=device)
+                entropy_loss = entropy.mean()
+                loss = pg_loss - args.ent_coef * entropy_loss \
+                    + args.vf_coef * critic_loss(v_loss, prim_loss, "paper", args.prim_coef)
+
+                optimizer.zero_grad()
+                loss.backward()
+                nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+                optimizer.step()
+            if args.target_kl is not None and approx_kl > args.target_kl:
+                break
+
+        y_pred, y_true = values.reshape(-1), returns.reshape(-1)
+        var_y = np.var(y_true)
+        explained_var = np.nan if var_y == 0 else 1 - np.var(y_true - y_pred) / var_y
+        elapsed = max(time.time() - start_time, 1e-9)
+        writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
+        writer.add_scalar("losses/value_loss", v_loss.item(), global_step)
+        writer.add_scalar("losses/prim_value_loss", prim_loss.item(), global_step)
+        writer.add_scalar("losses/policy_loss", pg_loss.item(), global_step)
+        writer.add_scalar("losses/entropy", entropy_loss.item(), global_step)
+        writer.add_scalar("losses/old_approx_kl", old_approx_kl.item(), global_step)
+        writer.add_scalar("losses/approx_kl", approx_kl.item(), global_step)
+        writer.add_scalar("losses/clipfrac", np.mean(clipfracs), global_step)
+        writer.add_scalar("losses/explained_variance", explained_var, global_step)
+        writer.add_scalar("charts/SPS", int((global_step - start_step) / elapsed), global_step)
+        writer.add_scalar("charts/decisions_per_second",
+                          int((decisions - start_decisions) / elapsed), global_step)
+        counts.log(global_step, decisions, iteration)
+        if num_routines:
+            usage = routine_counts / max(routine_counts.sum(), 1)
+            writer.add_scalar("routines/primitive_usage", usage[:num_primitives].sum(),
+                              global_step)
+            for k in range(num_routines):
+                writer.add_scalar(f"routines/usage_{k}", usage[num_primitives + k], global_step)
+
+        spent = budget_spent(args.budget_unit, global_step, decisions)
+        if logs.due(spent) or spent >= args.total_timesteps:
+            mean_ret = f"{np.mean(recent_returns[-20:]):.1f}" if recent_returns else "n/a"
+            usage = routine_counts[num_primitives:].sum() / max(routine_counts.sum(), 1)
+            progress = budget_progress(args.budget_unit, global_step, decisions,
+                                       args.total_timesteps)
+            print(f"{progress}  "
+                  f"SPS {int((global_step - start_step) / elapsed):>5d}  "
+                  f"return(last 20) {mean_ret:>8s}  episodes {len(recent_returns):>5d}  "
+                  f"routine use {usage:5.1%}", flush=True)
+        run.checkpoint_if_due(global_step=global_step, iteration=iteration, decisions=decisions)
+
+    envs.close()
+
+    def policy(observation):
+        with torch.no_grad():
+            action, _, _, _ = agent.get_action_and_value(
+                torch.as_tensor(np.asarray(observation)[None], device=device))
+        return int(action[0])
+
+    # Full games on the evaluation view (Procgen: unseen levels), aligned with the demo the
+    # routines came from when there is one; then --extra-evals and --record-demo.
+    run.finish(policy, model=agent, method=METHODS[args.mode], demo=demo, routines=library,
+               env_kwargs=eval_env_kwargs(args), global_step=global_step, iteration=iteration,
+               decisions=decisions)
+
+
+if __name__ == "__main__":
+    warnings.filterwarnings("ignore", category=DeprecationWarning)
+    routine_gym.register_envs()
+    run_script(main, Args, renamed={"--routines": "--routine-library"})
