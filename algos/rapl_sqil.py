@@ -114,8 +114,9 @@ class Args:
     """λ_length in the routine score f + λ·len"""
     alpha: int = 2
     """Levenshtein distance under which similar routines are pruned"""
-    proposer: Literal["full", "random", "enumerate", "random-fetch", "repeat"] = "full"
-    """full: Sequitur (the paper's model); the others are the discovery ablations"""
+    proposer: Literal["full", "random", "enumerate", "random-fetch", "repeat", "bpe"] = "full"
+    """full: Sequitur (the paper's model); bpe: byte-pair encoding; the others are the discovery
+    ablations"""
     max_routine_length: int = 64
     """ignore routine candidates longer than this (the wrapper pads every step to the longest)"""
 

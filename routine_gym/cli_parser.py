@@ -48,8 +48,10 @@ def _add_mine(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--alpha", type=int, default=2,
                    help="prune candidates within this Levenshtein distance of an accepted one (2)")
     p.add_argument("--proposer", default="full",
-                   choices=["full", "random", "enumerate", "random-fetch", "repeat"],
-                   help="full = Sequitur (the paper's model); the others are its ablations")
+                   choices=["full", "random", "enumerate", "random-fetch", "repeat", "bpe"],
+                   help="full = Sequitur (the paper's model); bpe = byte-pair encoding (merge the "
+                   "most frequent pair of actions until none occurs twice); the others are the "
+                   "paper's ablations")
     p.add_argument("--seed", type=int, default=0, help="seed of the random ablation proposers")
     p.add_argument("--keep-near-primitives", action="store_true",
                    help="do not count primitives as accepted (keeps length-2 routines at α=2)")

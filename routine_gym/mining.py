@@ -17,6 +17,10 @@
    pass in rule order in which a candidate too close to, or containing or contained in, a
    kept routine replaces it when its frequency is strictly higher.
 
+`BPEMiner` (`make_proposer("bpe")`, `--proposer bpe`) proposes by byte-pair encoding instead
+of a grammar (`routine_gym.bpe`; Subwords as Skills, NeurIPS 2024; PRISE, ICML 2024): every
+token the merges make, expanded, is a candidate, selected as above.
+
 The ablation proposers of the paper share the interface (`mine(actions) -> RoutineLibrary`),
 use the same K and the routine lengths the full miner finds, and are seeded:
 
@@ -50,13 +54,16 @@ from typing import Any, Protocol
 import numpy as np
 from rapidfuzz.distance import Levenshtein
 
+from routine_gym.bpe import encode
 from routine_gym.library import Routine, RoutineLibrary
 from routine_gym.occurrences import OccurrenceIndex, _pairs
 from routine_gym.sequitur import _as_episodes, induce
 
 __all__ = [
     "MAX_ROUTINE_LENGTH",
+    "OTHER_PROPOSERS",
     "PROPOSERS",
+    "BPEMiner",
     "EnumerationProposer",
     "RandomFetch",
     "RandomRoutines",
@@ -432,6 +439,59 @@ class SequiturMiner:
 
 
 @dataclass
+class BPEMiner(SequiturMiner):
+    """Mine the K best routines of a demonstration with byte-pair encoding instead of Sequitur.
+
+    The proposal phase merges, again and again, the most frequent pair of adjacent tokens of
+    the demonstrator's decision segments (`routine_gym.bpe.encode`: pairs never span an episode
+    boundary or an injected step; occurrences counted non-overlapping, as BPE merges them;
+    ties to the pair whose leftmost occurrence comes first), until no pair occurs twice or
+    after `max_merges` merges. Every merged token, expanded to actions, is a candidate
+    (duplicates merged, merge order kept, `min_length` and `max_length` applied as to the
+    grammar's rules). The selection phase is `SequiturMiner`'s, unchanged: the same score,
+    pruning and top K, or with `selection="authors"` the authors' selection, merge order
+    standing for rule order.
+
+    Args:
+        max_merges: stop after this many merges (None, the default: merge until no pair of
+            tokens occurs twice, so that, like Sequitur's rules, every candidate was merged
+            from at least two occurrences; each merge removes at least two tokens, so a demo of n
+            decisions has fewer than n/2). The other arguments are `SequiturMiner`'s; the
+            library's `params` records `proposer="bpe"` and `max_merges`.
+
+    Example:
+        >>> from routine_gym.mining import BPEMiner
+        >>> library = BPEMiner(num_routines=2).mine(
+        ...     [2, 2, 3, 5, 4, 4, 1, 2, 2, 3, 0, 4, 4, 1, 2, 2, 3]
+        ... )
+        >>> library.routines  # merges (2,2) (2,2,3) (4,4) (4,4,1) (4,4,1,2,2,3), then none
+        ((2, 2, 3), (4, 4, 1, 2, 2, 3))
+        >>> library.frequencies, library.params["proposer"]
+        ((3, 2), 'bpe')
+    """
+
+    max_merges: int | None = None
+
+    name = "bpe"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.max_merges is not None and (
+                isinstance(self.max_merges, bool)
+                or not isinstance(self.max_merges, int | np.integer) or self.max_merges < 1):
+            raise ValueError(f"max_merges needs to be an integer ≥ 1 or None, got "
+                             f"{self.max_merges!r}")
+
+    def candidates(self, episodes: Sequence[np.ndarray]) -> list[Routine]:
+        """Every merged token of the encoding, expanded; duplicates merged, merge order kept.
+
+        Tokens longer than `max_length` are never expanded.
+        """
+        seen = dict.fromkeys(encode(episodes, self.max_merges).expansions(self.max_length))
+        return [c for c in seen if self.min_length <= len(c)]
+
+
+@dataclass
 class _Ablation:
     """Shared part of the ablation proposers: the full model's lengths, seeded randomness.
 
@@ -553,6 +613,7 @@ class RepeatProposer(_Ablation):
         return [(int(ranked[k % ranked.size]),) * n for k, n in enumerate(lengths)]
 
 
+#: The paper's proposers (SPEC §2): the full model and its discovery ablations.
 PROPOSERS: dict[str, type] = {
     "full": SequiturMiner,
     "random": RandomRoutines,
@@ -560,6 +621,8 @@ PROPOSERS: dict[str, type] = {
     "random-fetch": RandomFetch,
     "repeat": RepeatProposer,
 }
+#: Proposers beyond the paper's: byte-pair encoding (`BPEMiner`, issue 29).
+OTHER_PROPOSERS: dict[str, type] = {"bpe": BPEMiner}
 
 
 def make_proposer(
@@ -573,20 +636,22 @@ def make_proposer(
     max_length: int | None = MAX_ROUTINE_LENGTH,
     selection: str = "paper",
 ) -> RoutineProposer:
-    """The proposer called `name` (`full`, `random`, `enumerate`, `random-fetch`, `repeat`);
-    `min_length` and `max_length` bound the full model's routines, whose lengths the
-    ablations copy; `selection` (`paper` or `authors`, see `SequiturMiner`) is the full
-    model's only: the ablations score and prune the paper's way."""
-    if name not in PROPOSERS:
-        raise ValueError(f"unknown proposer {name!r}; choose from {', '.join(PROPOSERS)}")
+    """The proposer called `name` (`full`, `random`, `enumerate`, `random-fetch`, `repeat`,
+    `bpe`); `min_length` and `max_length` bound the full model's routines, whose lengths the
+    ablations copy, and BPE's; `selection` (`paper` or `authors`, see `SequiturMiner`) is the
+    full model's and BPE's only: the ablations score and prune the paper's way."""
+    if name not in PROPOSERS and name not in OTHER_PROPOSERS:
+        raise ValueError(f"unknown proposer {name!r}; choose from "
+                         f"{', '.join([*PROPOSERS, *OTHER_PROPOSERS])}")
     _check_selection(selection)
-    if name == "full":
-        return SequiturMiner(num_routines, length_weight, alpha, prune_primitives,
-                             min_length=min_length, max_length=max_length, selection=selection)
+    if name in ("full", "bpe"):
+        miner = SequiturMiner if name == "full" else BPEMiner
+        return miner(num_routines, length_weight, alpha, prune_primitives,
+                     min_length=min_length, max_length=max_length, selection=selection)
     if selection != "paper":
         raise ValueError(
-            f"selection {selection!r} is the full proposer's only; the {name!r} ablation "
-            "scores and prunes the paper's way"
+            f"selection {selection!r} is the full and bpe proposers' only; the {name!r} "
+            "ablation scores and prunes the paper's way"
         )
     return PROPOSERS[name](num_routines, length_weight, alpha, prune_primitives, seed,
                            min_length, max_length)

@@ -43,8 +43,8 @@ def test_the_seven_experiments_and_four_budgets():
     # 5 games × 3 seeds × (A2C + 2 methods × {K 1, 3, 6 at length 2; length 5 at K 3}),
     # less Seaquest's length 5 (3 seeds × 2 methods): its demo has no routine of 5 actions
     ("scalability", 129, 129 * 10**6),
-    # 5 games × 3 seeds × (A2C + Full RR PbE RF RP ID) + 5 ID experts of 5M / 10 steps
-    ("ablation", 110, 105 * 10**6 + 5 * 500_000),
+    # 5 games × 3 seeds × (A2C + Full RR PbE RF RP BPE ID) + 5 ID experts of 5M / 10 steps
+    ("ablation", 125, 120 * 10**6 + 5 * 500_000),
     # 6 games × 3 seeds × (A2C, RAPL-A2C, and RAPL-A2C and MacroAction at a budget of 10^6
     # decisions, RAPL-A2C as the authors' code has it)
     ("diagnosis", 90, 90 * 10**6),
@@ -99,7 +99,29 @@ def test_ablation_id_uses_a_demo_of_an_expert_trained_a_tenth_as_long():
     proposers = {e.variant["discovery"]: dict(e.run.flags).get("proposer", "full")
                  for e in entries if "discovery" in e.variant}
     assert proposers == {"Full": "full", "RR": "random", "PbE": "enumerate",
-                         "RF": "random-fetch", "RP": "repeat", "ID": "full"}
+                         "RF": "random-fetch", "RP": "repeat", "BPE": "bpe", "ID": "full"}
+
+
+@pytest.mark.parametrize("budget", ["smoke", "cpu", "paper"])
+def test_adding_the_bpe_variant_keeps_every_other_runs_key_and_config(budget, monkeypatch):
+    # A sweep folder from before BPE resumes without rerunning anything: the runs it holds
+    # are the experiment's runs less BPE's, with the same keys and flags.
+    from routine_gym.experiments.paper import ablation
+
+    def configs():
+        return {e.run.key: e.run.config() for e in build("ablation", budget)
+                if e.variant.get("discovery") != "BPE"}
+
+    now = configs()
+    bpe = [e for e in build("ablation", budget) if e.variant.get("discovery") == "BPE"]
+    monkeypatch.setattr(ablation, "ABLATIONS",
+                        {k: v for k, v in ablation.ABLATIONS.items() if k != "BPE"})
+    assert configs() == now
+    sizes = BUDGETS[budget]
+    games = sizes.games if sizes.ablation_games is None else sizes.ablation_games
+    assert len(bpe) == sizes.seeds * len(games)  # one BPE run per game and seed
+    assert {dict(e.run.flags)["proposer"] for e in bpe} == {"bpe"}
+    assert not {e.run.key for e in bpe} & set(now)
 
 
 def test_scalability_varies_k_and_the_shortest_routine_length():
@@ -217,7 +239,7 @@ def test_smoke_sweep_of_all_seven_finishes_every_run(local_sweep):
     ablation = json.loads((out / "ablation.json").read_text())["runs"]
     (expert,) = [r for r in ablation if r["role"] == "expert"]
     assert (out / "runs" / expert["key"] / "demo.npz").is_file()
-    assert "[ablation] runs 8/8 done, 0 running, 0 failed · agent steps 7,500/7,500" in printed
+    assert "[ablation] runs 9/9 done, 0 running, 0 failed · agent steps 8,500/8,500" in printed
     # Every rapl_a2c run keeps its counters: at 1,000 steps (or decisions) of 4 envs × 5,
     # A2C and RAPL-A2C with the budget in decisions both make 50 updates of 20 decisions.
     rows = json.loads((out / "diagnosis.json").read_text())["runs"]
@@ -259,12 +281,12 @@ def test_report_of_a_real_smoke_sweep_writes_seven_figures_csvs_and_report_md(lo
         assert (report / f"{stem}.csv").read_text().count(",") >= 2, stem  # a header at least
     # Smoke runs are too short to score, but every run of the sweep is in the tables.
     rows = (report / "fig6_ablation.csv").read_text().splitlines()
-    assert {r.split(",")[0] for r in rows[1:]} >= {"Full", "RR", "PbE", "RF", "ID", "RP"}
+    assert {r.split(",")[0] for r in rows[1:]} >= {"Full", "RR", "PbE", "RF", "ID", "RP", "BPE"}
     text = (report / "report.md").read_text()
     assert "Budget: **smoke**" in text
     for heading in ("Table 1", "Fig. 2", "Fig. 3", "Fig. 4", "Fig. 5", "Fig. 6", "Diagnosis"):
         assert f"## {heading} " in text
-    assert "8 of 8 runs finished" in text
+    assert "9 of 9 runs finished" in text
 
 
 @pytest.mark.slow
@@ -279,7 +301,7 @@ def test_a_snapshot_keeps_results_not_checkpoints_and_continues_as_a_sweep(local
                            "routine-gym experiment run all --budget smoke"],
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
-    assert "ablation     8/8 runs finished" in proc.stdout
+    assert "ablation     9/9 runs finished" in proc.stdout
     kept = {p.relative_to(dest).parts[2] for p in dest.glob("runs/*/*")}
     assert kept == {"config.json", "result.json", "demo.npz"}  # no logs, no checkpoints
     # The report is drawn from the copy: it names the snapshot, not the sweep folder.
@@ -443,7 +465,7 @@ def test_cli_list_shows_every_experiment_with_its_runs_per_budget():
     for name in NAMES:
         assert name in rows
     assert "36 runs 36.0M steps" in rows["rl"] and "325 runs" in rows["rl"]
-    assert "110 runs" in rows["ablation"]
+    assert "125 runs" in rows["ablation"]
     assert "90 runs 90.0M steps" in rows["diagnosis"]
 
 

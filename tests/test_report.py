@@ -39,7 +39,8 @@ REPS = 100
 STEPS = 100
 
 IMITATION = {"BC": (0.1, 0.2), "GAIL": (0.2, 0.3), "SQIL": (0.3, 0.4), "RAPL-SQIL": (0.5, 0.6)}
-ABLATION = {"Full": 0.6, "RR": 0.3, "PbE": 0.35, "RF": 0.25, "ID": 0.5, "RP": 0.2}
+ABLATION = {"Full": 0.6, "RR": 0.3, "PbE": 0.35, "RF": 0.25, "ID": 0.5, "RP": 0.2,
+            "BPE": 0.55}
 # Hand-made training curves of A2C on Breakout: (step, episodic return).
 CURVE_SEED_1 = [(3, 5.0), (4, 7.0), (9, 2.0), (100, 10.0)]
 CURVE_SEED_2 = [(2, 4.0), (50, 8.0)]

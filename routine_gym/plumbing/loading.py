@@ -143,7 +143,8 @@ def load_routines(
             (`routine_gym.mining.make_proposer`); the scripts' `--min-routine-length` and
             `--max-routine-length`.
         selection: `"paper"` or `"authors"`, the selection phase of the full miner
-            (`routine_gym.mining.SequiturMiner`; SPEC §5b); the ablations take only `"paper"`.
+            (`routine_gym.mining.SequiturMiner`; SPEC §5b) and of `bpe`; the ablations take only
+            `"paper"`.
         source: provenance the mined library records (the demo's path).
         env_kwargs: `gym.make` keyword arguments of the env a saved library is checked against.
         required: when set (`"--mode rapl"`), finding no routine is an error naming it.
