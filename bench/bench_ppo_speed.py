@@ -1,0 +1,224 @@
+"""Benchmark: agent steps per second of `algos/rapl_ppo.py` against `algos/rapl_a2c.py`.
+
+The acceptance of issue 29: on `MinAtar/Breakout-v1`, `rapl_ppo.py` makes at least as many
+primitive agent steps per second as `rapl_a2c.py`, measured in the same run. Both modes are
+compared: plain (`--mode ppo` against `--mode a2c`) and with routines (`--mode rapl` of each).
+Each script runs with its own defaults for the env (`rapl_a2c.py`: 16 envs × 5 steps, one
+RMSprop step per rollout; `rapl_ppo.py`'s MinAtar defaults: 64 envs × 128 steps, 4 epochs of 8
+minibatches of Adam) and `--torch-threads 1 --eval-episodes 0`, each configuration in its own
+subprocess, the two scripts of a pair one after the other, the pair's order alternating from
+one repeat to the next so that a drift in the machine's load favours neither.
+
+The time is taken in this process from the arrival of the script's progress line at the first
+step ≥ `--warmup` to that of its last line (`--log-every 1000`: rapl_ppo prints one per rollout,
+rapl_a2c one per 1,000 steps), so env creation, routine mining and the first updates are
+outside it; SPS = steps between the two lines / seconds between them. The CPU time of the
+process over the same steps (/proc) is reported beside it: a shared machine disturbs it less
+than wall time. RAPL mines its routines from `demos/MinAtar-Breakout-v1.npz`.
+
+`--explain` adds rapl_ppo with `--update-epochs 1` against the same rapl_a2c runs: PPO's
+default makes 4 gradient passes over every sample (A2C one), which is where its time goes on
+MinAtar's small network; one epoch shows what the rest of the script costs.
+
+Usage:
+    python bench/bench_ppo_speed.py                                   # 2 repeats, ~5 minutes
+    python bench/bench_ppo_speed.py --warmup 20000 --steps 100000 --repeats 1 --explain
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shlex
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from bench_a2c_speed import PROGRESS, other_processes, tree_cpu_seconds
+from common import base_machine_info, git_head, load_average, memory, thread_env_vars
+
+REPO = Path(__file__).resolve().parents[1]
+SCRIPTS = {"a2c": REPO / "algos" / "rapl_a2c.py", "ppo": REPO / "algos" / "rapl_ppo.py"}
+#: The configurations: (script, mode, extra flags), and the pairs compared (A2C's first). The
+#: `-e1` pairs are for explanation, not acceptance: rapl_ppo with one epoch per rollout, so
+#: that each sample gets one gradient pass as in A2C (PPO's default is 4).
+CONFIGS = {"a2c": ("a2c", "a2c", ()), "ppo": ("ppo", "ppo", ()),
+           "rapl-a2c": ("a2c", "rapl", ()), "rapl-ppo": ("ppo", "rapl", ()),
+           "ppo-e1": ("ppo", "ppo", ("--update-epochs", "1")),
+           "rapl-ppo-e1": ("ppo", "rapl", ("--update-epochs", "1"))}
+PAIRS = (("a2c", "ppo"), ("rapl-a2c", "rapl-ppo"))
+EXPLAIN_PAIRS = (("a2c", "ppo-e1"), ("rapl-a2c", "rapl-ppo-e1"))
+
+
+@dataclass
+class Result:
+    """One configuration's measurement."""
+
+    config: str
+    repeat: int
+    command: str
+    load_before: str
+    start_step: int = 0
+    end_step: int = 0
+    seconds: float | None = None
+    sps: float | None = None
+    cpu_seconds: float | None = None
+    routine_use: float | None = None
+    error: str = ""
+
+    @property
+    def cpu_sps(self) -> float | None:
+        if not self.cpu_seconds:
+            return None
+        return (self.end_step - self.start_step) / self.cpu_seconds
+
+
+def run_config(name: str, args, run_dir: Path, repeat: int) -> Result:
+    """Run one script in a subprocess and time its progress lines as they arrive."""
+    script, mode, extra = CONFIGS[name]
+    cmd = [sys.executable, str(SCRIPTS[script]), "--env-id", args.env_id, "--mode", mode,
+           "--total-timesteps", str(args.warmup + args.steps), "--eval-episodes", "0",
+           "--log-every", "1000", "--torch-threads", "1", "--run-dir", str(run_dir),
+           "--seed", "1", *extra]
+    if mode == "rapl":
+        cmd += ["--demo", args.demo]
+    result = Result(name, repeat, shlex.join(cmd), load_average())
+    stamps: list[tuple[float, int, float, float | None]] = []
+    with tempfile.TemporaryFile("w+") as err:
+        proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=err, text=True,
+                                bufsize=1, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        assert proc.stdout is not None
+        for line in iter(proc.stdout.readline, ""):
+            match = PROGRESS.match(line.strip())
+            if match:
+                stamps.append((time.perf_counter(), int(match.group(1).replace(",", "")),
+                               float(match.group(3)), tree_cpu_seconds(proc.pid)))
+        returncode = proc.wait()
+        err.seek(0)
+        stderr = err.read().strip()
+    if returncode != 0:
+        result.error = stderr.splitlines()[-1] if stderr else f"exit code {returncode}"
+        return result
+    start = next((s for s in stamps if s[1] >= args.warmup), None)
+    if start is None or stamps[-1] is start:
+        result.error = f"too few progress lines after the warm-up ({len(stamps)})"
+        return result
+    end = stamps[-1]
+    result.start_step, result.end_step = start[1], end[1]
+    result.seconds = end[0] - start[0]
+    result.sps = (end[1] - start[1]) / result.seconds
+    result.routine_use = end[2]
+    if start[3] is not None and end[3] is not None and end[3] > start[3]:
+        result.cpu_seconds = end[3] - start[3]
+    return result
+
+
+def _num(value: float | None, spec: str) -> str:
+    return "–" if value is None else format(value, spec)
+
+
+def render(results: list[Result], args, command: str, before: str, after: str) -> str:
+    """The markdown report: every measurement, then the pairs' ratios."""
+    lines = [
+        "# rapl_ppo.py vs rapl_a2c.py: agent steps per second on " + args.env_id, "",
+        "Produced by `bench/bench_ppo_speed.py` (its docstring says how it measures). Each "
+        "script with its own defaults for the env and `--torch-threads 1`; SPS = primitive "
+        "agent steps between the progress line at the first step ≥ the warm-up and the last "
+        "one, over the wall time between them; `CPU s` the process's CPU time over the same "
+        "steps. **The machine is shared**: other jobs ran during the measurement (the load "
+        "averages and the busiest other processes are below), so the figures are lower than on "
+        "an idle machine and vary between repeats; compare the two scripts of a pair, which ran "
+        "back to back.", "",
+        "| config | script | mode | repeat | load (1/5/15) before | steps timed | wall s | SPS "
+        "| CPU s | steps per CPU s | routine use |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in results:
+        script, mode, _ = CONFIGS[r.config]
+        if r.error:
+            lines.append(f"| {r.config} | rapl_{script}.py | {mode} | {r.repeat} | "
+                         f"{r.load_before} | error: {r.error} | | | | | |")
+            continue
+        lines.append(
+            f"| {r.config} | rapl_{script}.py | {mode} | {r.repeat} | {r.load_before} | "
+            f"{r.end_step - r.start_step:,} | {r.seconds:.1f} | **{r.sps:,.0f}** | "
+            f"{_num(r.cpu_seconds, '.1f')} | {_num(r.cpu_sps, ',.0f')} | "
+            f"{_num(r.routine_use, '.1f')} % |")
+    lines += ["", "## Summary", ""]
+    for a2c, ppo in (*PAIRS, *(p for p in EXPLAIN_PAIRS if args.explain)):
+        ratios, cpu_ratios = [], []
+        for repeat in range(args.repeats):
+            pair = {r.config: r for r in results if r.repeat == repeat and not r.error}
+            if a2c in pair and ppo in pair:
+                ratios.append(pair[ppo].sps / pair[a2c].sps)
+                if pair[ppo].cpu_sps and pair[a2c].cpu_sps:
+                    cpu_ratios.append(pair[ppo].cpu_sps / pair[a2c].cpu_sps)
+        if not ratios:
+            lines.append(f"- {ppo} / {a2c}: no complete pair.")
+            continue
+        best = {name: max((r.sps for r in results if r.config == name and not r.error),
+                          default=None) for name in (a2c, ppo)}
+        verdict = "yes" if statistics.median(ratios) >= 1.0 else "no"
+        if (a2c, ppo) in EXPLAIN_PAIRS:
+            verdict += " (one epoch: an explanation, not the acceptance)"
+        lines.append(
+            f"- {ppo} / {a2c}: per repeat {', '.join(f'{x:.2f}×' for x in ratios)} in wall-clock "
+            f"SPS (median {statistics.median(ratios):.2f}×); per CPU second "
+            f"{', '.join(f'{x:.2f}×' for x in cpu_ratios) or '–'}. Best repeats: "
+            f"{best[ppo]:,.0f} vs {best[a2c]:,.0f} SPS. rapl_ppo at least as fast: {verdict}.")
+    lines += [
+        "", "## Setup", "",
+        f"- Command: `{command}`",
+        f"- Load average (1/5/15 min) before the benchmark: {before}; after: {after}",
+        f"- Busiest other processes at the end: {other_processes()}",
+        "- Commands per configuration (first repeat):",
+        *[f"  - {r.config}: `{r.command}`" for r in results if r.repeat == 0],
+        "", "## Machine", "",
+    ]
+    import torch
+
+    info = {**base_machine_info(), "memory": memory(),
+            "torch": f"{torch.__version__} (default threads {torch.get_num_threads()})",
+            "thread env vars": thread_env_vars(),
+            "git HEAD": git_head(REPO, [str(p) for p in SCRIPTS.values()])}
+    lines += [f"- {key}: {value}" for key, value in info.items()]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--env-id", default="MinAtar/Breakout-v1")
+    parser.add_argument("--demo", default=str(REPO / "demos" / "MinAtar-Breakout-v1.npz"))
+    parser.add_argument("--warmup", type=int, default=20_000, help="agent steps before timing")
+    parser.add_argument("--steps", type=int, default=100_000, help="agent steps timed")
+    parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--explain", action="store_true",
+                        help="also run the one-epoch pairs (rapl_ppo --update-epochs 1)")
+    parser.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "ppo_speed.md")
+    args = parser.parse_args(argv)
+    command = "python bench/bench_ppo_speed.py " + shlex.join(argv if argv is not None
+                                                               else sys.argv[1:])
+    before = load_average()
+    results = []
+    with tempfile.TemporaryDirectory(prefix="bench_ppo_speed_") as tmp:
+        for repeat in range(args.repeats):
+            for pair in (*PAIRS, *(EXPLAIN_PAIRS if args.explain else ())):
+                for name in pair if repeat % 2 == 0 else reversed(pair):
+                    result = run_config(name, args, Path(tmp) / "runs", repeat)
+                    results.append(result)
+                    print(f"{name} (repeat {repeat}): "
+                          + (result.error or f"{result.sps:,.0f} SPS"), flush=True)
+    report = render(results, args, command.strip(), before, load_average())
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    tmp_out = args.out.with_suffix(".tmp")
+    tmp_out.write_text(report)
+    tmp_out.replace(args.out)  # never half a report on disk
+    print(report)
+
+
+if __name__ == "__main__":
+    main()
