@@ -1,7 +1,9 @@
-"""The `routine-gym` command line: mine, show, replay, upgrade, export, play and record.
+"""The `routine-gym` command line: mine, show, picture, replay, upgrade, export, play and record.
 
     routine-gym mine demos/MiniQbert-v0.npz --num-routines 3 --out routines.json
     routine-gym show routines.json
+    routine-gym picture demos/MiniQbert-v0.npz --out miniqbert.png
+    routine-gym picture runs/MinAtar-Breakout-v1__rapl_a2c-rapl__1__1764860000 --out usage.png
     routine-gym replay demos/MiniQbert-v0.npz
     routine-gym upgrade old_demo.npz --out new_demo.npz
     routine-gym export demos/MinAtar-Breakout-v1.npz --minari routine-gym/breakout-expert-v0
@@ -245,6 +247,46 @@ def cmd_show_demos(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_picture(args: argparse.Namespace) -> int:
+    from routine_gym import pictures
+    from routine_gym.demo.minari import minari_dataset_id
+    from routine_gym.mining import SequiturMiner
+    from routine_gym.plumbing.atomic import check_writable
+
+    _needs("--num-routines", args.num_routines, args.num_routines >= 1, "≥ 1")
+    _not_an_input(args.out, "--out", args.source)
+    check_writable(args.out, "--out")
+    if minari_dataset_id(args.source) is None and Path(args.source).is_dir():
+        if args.routines is not None:
+            raise CLIError(f"--routines names a demo's routines; {args.source} is a run folder, "
+                           "whose routines are its own routines.json")
+        usage = pictures.routine_usage(args.source)
+        pictures.save_png(pictures.draw_routine_usage(usage), args.out)
+        shares = ", ".join(f"{name} {share:.1%}" for name, share in zip(
+            ("primitives", *usage.names), usage.overall, strict=True) if share is not None)
+        print(f"wrote {args.out}: routine usage of {usage.run} over {usage.primitive_steps:,} "
+              f"agent steps ({usage.decisions:,} decisions: {shares})")
+        return 0
+    demo = _load_demo(args.source)
+    if args.routines is not None:
+        _not_an_input(args.out, "--out", args.routines)
+        library = RoutineLibrary.load(args.routines)
+    else:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            library = SequiturMiner(num_routines=args.num_routines).mine(demo)
+        for w in caught:
+            print(f"warning: {w.message}", file=sys.stderr)
+    picture = pictures.routine_picture(demo, library, source=args.source)
+    pictures.save_png(pictures.draw_routine_picture(picture), args.out)
+    frames = ("the demo's observations" if picture.replayed_steps == 0 else
+              f"{picture.replayed_steps} replayed steps")
+    print(f"wrote {args.out}: {len(picture.films)} routine(s) of {picture.env_id} "
+          f"({args.source}), frames from {frames}")
+    print(pictures.describe_picture(picture))
+    return 0
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from routine_gym.demo import DemoReplayError, replay
 
@@ -394,7 +436,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     parser, commands = build_parsers()
     handlers = {
-        "mine": cmd_mine, "show": cmd_show, "show-demos": cmd_show_demos, "replay": cmd_replay,
+        "mine": cmd_mine, "show": cmd_show, "show-demos": cmd_show_demos,
+        "picture": cmd_picture, "replay": cmd_replay,
         "upgrade": cmd_upgrade, "export": cmd_export, "record": cmd_record, "play": cmd_play,
         "experiment list": cmd_experiment_list, "experiment run": cmd_experiment_run,
         "experiment report": cmd_experiment_report,

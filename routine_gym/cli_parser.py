@@ -26,6 +26,7 @@ def build_parsers() -> tuple[argparse.ArgumentParser, dict[str, argparse.Argumen
         "mine": _add_mine(sub),
         "show": _add_show(sub),
         "show-demos": _add_show_demos(sub),
+        "picture": _add_picture(sub),
         "replay": _add_replay(sub),
         "upgrade": _add_upgrade(sub),
         "export": _add_export(sub),
@@ -79,6 +80,29 @@ def _add_show_demos(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                        "source, and the routines mined from it with action names.")
     p.add_argument("--dir", default=None, help="demo folder (the shipped demos/)")
     p.add_argument("--num-routines", "-k", type=int, default=3, help="K, routines to mine (3)")
+    return p
+
+
+def _add_picture(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """`routine-gym picture DEMO|RUN_DIR --out OUT.png`: pictures of routines."""
+    p = sub.add_parser("picture", help="draw a demo's routines (film strips and timeline) or a "
+                       "run's routine usage as a PNG",
+                       description="Given a demo: for each routine, a film strip of the frames "
+                       "of its first occurrence in the demo, each captioned with its action, "
+                       "and a timeline of the demo marking every occurrence and the injected "
+                       "steps; a demo without RGB observations is replayed from its seed as "
+                       "far as needed (its env must render rgb_array). The routines are mined "
+                       "from the demo as `mine` does, or read from --routines. Given a run "
+                       "folder of a script in algos/: the share of the decisions that chose "
+                       "each routine and the primitive actions against agent steps, from its "
+                       "TensorBoard log (counters/primitive_share, counters/share_k).")
+    p.add_argument("source", help="a demo file (.npz), a local Minari dataset as "
+                   "minari:DATASET_ID, or a run folder (with TensorBoard events)")
+    p.add_argument("--out", "-o", required=True, help="the PNG to write")
+    p.add_argument("--routines", default=None, metavar="LIBRARY.json",
+                   help="a demo's routines from this library (`mine --out`), instead of mining")
+    p.add_argument("--num-routines", "-k", type=int, default=3,
+                   help="K, routines to mine from a demo (3)")
     return p
 
 

@@ -20,7 +20,7 @@ from routine_gym.library import RoutineLibrary
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
-SUBCOMMANDS = ("mine", "show", "replay", "show-demos", "export", "record", "play")
+SUBCOMMANDS = ("mine", "show", "replay", "show-demos", "picture", "export", "record", "play")
 
 
 @pytest.fixture

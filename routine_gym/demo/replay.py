@@ -3,15 +3,17 @@
 A demo's env is deterministic given the reset seed and the actions, so `replay` re-creates the
 raw env from the demo's `meta` and checks every reward, flag and (when stored) observation. A
 version-1 demo is upgraded to version 2 the same way: `upgrade_demo` replays it through the
-preprocessing it was recorded under to re-derive which steps were injected.
+preprocessing it was recorded under to re-derive which steps were injected. `render_frames`
+replays a demo with the env rendering, as far as the frames it is asked for (the pictures of
+routines, `routine_gym.pictures`).
 """
 
 from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, replace
 from typing import Any
 
 import gymnasium as gym
@@ -176,6 +178,101 @@ def replay(
         divergences=tuple(divergences),
         demo=replayed,
     )
+
+
+def render_frames(
+    demo: Demo, steps: Mapping[int, Iterable[int]]
+) -> dict[tuple[int, int], np.ndarray]:
+    """The RGB frames the env showed before the given steps, replayed from the demo's seeds.
+
+    Each episode named in `steps` is reset with its seed in the env `replay` makes, with
+    `render_mode="rgb_array"`, and stepped only as far as the last step asked for, so a frame
+    near the start of a long demo costs a few steps. Every replayed step is checked against
+    the record as `replay` checks it.
+
+    Args:
+        demo: the demo.
+        steps: `{episode: steps within it}`; step `t` asks for the frame before action `t`.
+
+    Returns:
+        `{(episode, step): frame}`, each frame `env.render()`: an (H, W, 3) uint8 array.
+
+    Raises:
+        ValueError: the demo has no env id, an episode has no seed, a step lies outside its
+            episode, or the env cannot render RGB frames (naming the env and the problem).
+        DemoReplayError: the replay diverged from the record before the last frame asked for.
+    """
+    wanted = {demo._index(e): sorted({int(t) for t in ts}) for e, ts in steps.items()}
+    wanted = {e: ts for e, ts in wanted.items() if ts}
+    for e, ts in wanted.items():
+        if ts[0] < 0 or ts[-1] >= int(demo.episode_lengths[e]):
+            raise ValueError(f"step {ts[0] if ts[0] < 0 else ts[-1]} is outside episode {e} "
+                             f"of the demo ({int(demo.episode_lengths[e])} steps)")
+        if demo.meta["seeds"][e] is None:
+            raise ValueError(f"episode {e} of the demo has no reset seed, so it cannot be replayed")
+    if not wanted:
+        return {}
+    env = _rendering_env(demo)
+    frames: dict[tuple[int, int], np.ndarray] = {}
+    try:
+        for e, ts in sorted(wanted.items()):
+            ep = demo.episode(e)
+            pending = set(ts)
+            env.reset(seed=ep.seed)
+            for t in range(ts[-1] + 1):
+                if t in pending:
+                    frames[(e, t)] = _rgb_frame(env.render(), demo.env_id)
+                if t == ts[-1]:
+                    break
+                _, reward, terminated, truncated, _ = env.step(int(ep.actions[t]))
+                divergence = _compare_step(replace(ep, observations=None), t, None,
+                                           reward, terminated, truncated)
+                if divergence is not None:
+                    raise DemoReplayError(
+                        f"replay of episode {e} (seed {ep.seed}) diverged at step {t} (action "
+                        f"{int(ep.actions[t])}): {divergence}", episode=e, step=t)
+    finally:
+        env.close()
+    return frames
+
+
+def _rendering_env(demo: Demo) -> gym.Env:
+    """The demo's env as `replay` makes it, rendering RGB frames; a `ValueError` naming the env
+    and the problem when it cannot."""
+    if demo.env_id is None:
+        raise ValueError("this demo has no env id (it was recorded on an env not made by "
+                         "gym.make), so its frames cannot be rendered by replaying it")
+    kwargs = demo.env_kwargs
+    if demo.meta.get("max_episode_steps") is not None:
+        kwargs["max_episode_steps"] = demo.meta["max_episode_steps"]
+    problem = f"{demo.env_id} cannot render RGB frames (render_mode='rgb_array')"
+    # Gymnasium warns, then passes the mode on, when an env does not list it; the warning
+    # would be a second line beside the one-line error, so it is caught and the modes read.
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            env = make_env(demo.env_id, render_mode="rgb_array", **kwargs)
+        except (TypeError, ValueError) as exc:
+            message = "; ".join(line.strip() for line in str(exc).splitlines() if line.strip())
+            raise ValueError(f"{problem}: making it so fails: {message}") from None
+    modes = list(env.metadata.get("render_modes") or [])
+    if "rgb_array" not in modes:
+        env.close()
+        raise ValueError(f"{problem}: its render modes are {modes}")
+    return env
+
+
+def _rgb_frame(frame: Any, env_id: str | None) -> np.ndarray:
+    """`env.render()`'s frame as an (H, W, 3) uint8 array; a `ValueError` for anything else."""
+    array = np.asarray(frame) if frame is not None else None
+    if array is None or array.ndim != 3 or array.shape[-1] not in (3, 4) or array.size == 0:
+        what = "None" if array is None else f"an array of shape {array.shape}"
+        raise ValueError(f"{env_id} cannot render RGB frames: render() with "
+                         f"render_mode='rgb_array' returned {what}, not an (H, W, 3) image")
+    if array.dtype != np.uint8:
+        scale = 255.0 if array.dtype.kind == "f" and array.max(initial=0) <= 1.0 else 1.0
+        array = np.clip(array * scale, 0, 255).astype(np.uint8)
+    return np.ascontiguousarray(array[..., :3])
 
 
 def _compare_step(

@@ -102,14 +102,16 @@ def make_env(
             Atari: reward clipping).
         record_observations: let the routine wrapper return the intermediate observations.
         env_kwargs: extra `gym.make` keyword arguments (e.g. `num_levels` for CoinRun).
-        capture_video: record videos of env 0 into `videos/{run_name}`.
+        capture_video: film env 0's episodes 0, 1, 8, 27, ... (CleanRL's schedule) into
+            `videos/{run_name}/train-episode-{k}.gif`, each frame captioned with its primitive
+            action (`routine_gym.video`; Gymnasium's `RecordVideo` needs moviepy).
     """
 
     def thunk() -> gym.Env:
         render_mode = "rgb_array" if capture_video and idx == 0 else None
         env = make_primitive_env(env_id, render_mode=render_mode, **(env_kwargs or {}))
         if capture_video and idx == 0:
-            env = gym.wrappers.RecordVideo(env, f"videos/{run_name}")
+            env = _filmed(env, f"videos/{run_name}")
         env = RecordEpisodeStatistics(env)
         env = preprocess(env, env_id, training=training)
         if routines is not None and len(routines) > 0:
@@ -120,6 +122,23 @@ def make_env(
         return env
 
     return thunk
+
+
+def _filmed(env: gym.Env, folder: str) -> gym.Env:
+    """`env` filming its episodes on the cubic schedule as captioned GIFs in `folder`."""
+    from routine_gym.video import FrameRecorder, cubic_schedule, step_captions, write_gif
+
+    meanings = getattr(env.unwrapped, "get_action_meanings", lambda: None)()
+    fps = (env.metadata or {}).get("render_fps") or 15
+
+    def write(episode: int, frames: list, actions: list[int]) -> None:
+        captions = step_captions(actions, [True] * len(actions), actions,
+                                 num_actions=int(env.action_space.n),
+                                 action_meanings=meanings)
+        write_gif(frames, [*captions, f"end of training episode {episode}"],
+                  f"{folder}/train-episode-{episode}.gif", fps=fps)
+
+    return FrameRecorder(env, record=cubic_schedule, on_episode_end=write)
 
 
 def make_vector_env(

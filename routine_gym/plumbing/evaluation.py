@@ -38,6 +38,10 @@ from routine_gym.plumbing.atomic import atomic_write_text
 __all__ = ["evaluate_policy", "save_evaluation"]
 
 
+#: The evaluation episodes `--capture-video` films (a GIF of a long Atari game is megabytes).
+VIDEO_EPISODES = 3
+
+
 def evaluate_policy(
     env_id: str,
     policy: Callable[[np.ndarray], int],
@@ -48,6 +52,7 @@ def evaluate_policy(
     routines: RoutineLibrary | Sequence[Sequence[int]] | None = None,
     env_kwargs: dict[str, Any] | None = None,
     max_steps: int | None = None,
+    video_folder: str | None = None,
 ) -> dict[str, Any]:
     """Run `policy` for `episodes` full episodes; score them and, with a demo, align them.
 
@@ -62,6 +67,10 @@ def evaluate_policy(
         env_kwargs: `gym.make` keyword arguments (default: the demo's, else none), over the
             env's defaults.
         max_steps: cap on the primitive steps of an episode (None: the env's own limit).
+        video_folder: film the first `VIDEO_EPISODES` episodes into
+            `{video_folder}/eval-episode-{k}.gif`, each frame captioned with the primitive
+            action or the routine step it executes (`routine_gym.video`); the env must render
+            RGB frames.
 
     Returns:
         The JSON-able summary of the module docstring.
@@ -72,13 +81,33 @@ def evaluate_policy(
         env_kwargs = demo.env_kwargs if demo is not None else {}
     kwargs = {**default_env_kwargs(env_id), **env_kwargs}
 
+    films = None
+
     def wrap(env: gym.Env) -> gym.Env:
+        nonlocal films
+        if video_folder is not None:
+            from routine_gym.video import FrameRecorder
+
+            # On the recorded env: the same primitive steps as the demo of the episodes.
+            env = films = FrameRecorder(env, record=lambda episode: episode < VIDEO_EPISODES)
         return preprocess(RecordEpisodeStatistics(env), env_id, training=False)
 
+    choices: list[list[int]] = []  # the policy's decisions, per episode (for the captions)
+
+    def act(obs: np.ndarray) -> int:
+        action = int(np.asarray(policy(obs)).reshape(-1)[0])
+        while len(choices) <= films.episode:
+            choices.append([])
+        choices[films.episode].append(action)
+        return action
+
     played = record_agent_demo(
-        env_id, policy, num_episodes=episodes, seed=seed, env_kwargs=kwargs, keep="all",
-        max_steps=max_steps, progress=False, wrap_env=wrap, routines=routines,
+        env_id, policy if video_folder is None else act, num_episodes=episodes, seed=seed,
+        env_kwargs=kwargs if video_folder is None else {**kwargs, "render_mode": "rgb_array"},
+        keep="all", max_steps=max_steps, progress=False, wrap_env=wrap, routines=routines,
     )
+    if video_folder is not None:
+        _write_videos(video_folder, played, films, choices, routines, env_id)
     trajectories = played.decision_actions()
     returns = played.scores.tolist()
     summary: dict[str, Any] = {
@@ -113,6 +142,21 @@ def evaluate_policy(
         except ValueError:
             pass  # a game outside the published table
     return summary
+
+
+def _write_videos(folder: str, played: Demo, films: Any, choices: list[list[int]],
+                  routines: RoutineLibrary | Sequence[Sequence[int]] | None, env_id: str) -> None:
+    """Each filmed evaluation episode as `{folder}/eval-episode-{k}.gif`, captioned."""
+    from routine_gym.video import step_captions, write_gif
+
+    fps = (films.metadata or {}).get("render_fps") or 15
+    for k, (frames, _) in enumerate(films.episodes):
+        episode = played.episode(k)
+        captions = step_captions(episode.actions, episode.decisions, choices[k],
+                                 played.num_actions, routines, played.action_meanings)
+        captions.append(f"end of episode {k}: return {episode.score:g}")
+        write_gif(frames, captions, os.path.join(folder, f"eval-episode-{k}.gif"), fps=fps)
+    print(f"{env_id}: {len(films.episodes)} evaluation video(s) in {folder}", flush=True)
 
 
 def save_evaluation(summary: dict[str, Any], run_path: str, writer: Any, global_step: int,

@@ -253,7 +253,8 @@ class Run:
                max_steps: int | None = None, summary: dict[str, Any] | None = None,
                **counters: int) -> dict[str, Any] | None:
         """End the run: the last checkpoint (with `--checkpoint-every`), the model
-        (`--save-model`), the evaluation in `eval.json` (`--eval-episodes`), the evaluations of
+        (`--save-model`), the evaluation in `eval.json` (`--eval-episodes`; with
+        `--capture-video` its episodes filmed into `{run}/videos/`), the evaluations of
         `--extra-evals`, the demo of `--record-demo`, and the writer closed (and the W&B run
         of `--track` ended).
 
@@ -281,9 +282,13 @@ class Run:
             self.save_model(model)
         result = None
         if args.eval_episodes > 0:
+            # --capture-video: the evaluation episodes as GIFs, the routine executed named.
+            videos = os.path.join(self.path, "videos") \
+                if getattr(args, "capture_video", False) else None
             result = evaluate_policy(args.env_id, policy, args.eval_episodes,
                                      seed=args.seed + 10_000, demo=demo, routines=routines,
-                                     env_kwargs=env_kwargs, max_steps=max_steps)
+                                     env_kwargs=env_kwargs, max_steps=max_steps,
+                                     video_folder=videos)
             result.update(method=method, global_step=step, **(summary or {}))
             save_evaluation(result, self.path, self.writer, step)
             for levels in getattr(args, "extra_evals", ()):
