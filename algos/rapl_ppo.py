@@ -113,29 +113,33 @@ class Args:
     """what --total-timesteps, the learning-rate schedule and --checkpoint-every count:
     primitive agent steps, or decisions (agent calls)"""
     learning_rate: float | None = None
-    """the learning rate of the Adam optimizer (Atari 2.5e-4, Procgen 5e-4, MinAtar 5e-4,
-    others 2.5e-4)"""
+    """the learning rate of the Adam optimizer (None: the env family's, Atari 2.5e-4, Procgen
+    5e-4, MinAtar 5e-4, others 2.5e-4)"""
     anneal_lr: bool = True
     """linear decay of the learning rate to 0 (CleanRL's ppo_procgen.py keeps it constant:
     --no-anneal-lr)"""
     num_envs: int | None = None
-    """the number of parallel environments (Atari 8, Procgen 64, MinAtar 64, others 4)"""
+    """the number of parallel environments (None: the env family's, Atari 8, Procgen 64,
+    MinAtar 64, others 4)"""
     num_steps: int | None = None
-    """decisions per environment per rollout, N (Atari 128, Procgen 256, MinAtar 128,
-    others 128)"""
+    """decisions per environment per rollout, N (None: the env family's, Atari 128, Procgen
+    256, MinAtar 128, others 128)"""
     gamma: float | None = None
-    """the discount factor γ per primitive step (Procgen 0.999, others 0.99)"""
+    """the discount factor γ per primitive step (None: the env family's, Procgen 0.999, others
+    0.99)"""
     gae_lambda: float = 0.95
     """the λ of generalised advantage estimation, per primitive step"""
     num_minibatches: int | None = None
-    """the number of minibatches per epoch (Atari 4, Procgen 8, MinAtar 8, others 4)"""
+    """the number of minibatches per epoch (None: the env family's, Atari 4, Procgen 8,
+    MinAtar 8, others 4)"""
     update_epochs: int | None = None
-    """the number of epochs over each rollout (Atari 4, Procgen 3, MinAtar 4, others 4)"""
+    """the number of epochs over each rollout (None: the env family's, Atari 4, Procgen 3,
+    MinAtar 4, others 4)"""
     norm_adv: bool = True
     """normalise the advantages in each minibatch"""
     clip_coef: float | None = None
-    """the surrogate clipping coefficient ε, also the value clipping range (Atari 0.1, others
-    0.2)"""
+    """the surrogate clipping coefficient ε, also the value clipping range (None: the env
+    family's, Atari 0.1, others 0.2)"""
     clip_vloss: bool = True
     """clip the value losses (decision states and, RAPL, the states inside routines)"""
     ent_coef: float = 0.01
