@@ -262,36 +262,52 @@ def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
 
 
 class Agent(nn.Module):
+    """The policy and the value over one torso for images (CleanRL's `ppo_atari.py` and
+    `ppo_procgen.py` share their CNN), over two for flat observations (its `ppo.py` gives the
+    actor and the critic an MLP each: on CartPole a shared one learns several times slower)."""
+
     def __init__(self, env_id: str, obs_space: gym.spaces.Box, num_actions: int) -> None:
         super().__init__()
         self.encoder = ObservationEncoder(env_id, obs_space.shape, obs_space.dtype)
+        self.critic_encoder = (ObservationEncoder(env_id, obs_space.shape, obs_space.dtype)
+                               if len(obs_space.shape) == 1 else None)
         self.actor = layer_init(nn.Linear(self.encoder.num_features, num_actions), std=0.01)
         self.critic = layer_init(nn.Linear(self.encoder.num_features, 1), std=1.0)
 
+    def features(self, obs: torch.Tensor, num_actor: int | None = None):
+        """The actor's features of the first `num_actor` states (default: all) and the critic's
+        of all of them."""
+        if self.critic_encoder is None:
+            hidden = self.encoder(obs)
+            return hidden[:num_actor], hidden
+        actor_obs = obs if num_actor is None else obs[:num_actor]
+        return self.encoder(actor_obs), self.critic_encoder(obs)
+
     def get_value(self, obs: torch.Tensor) -> torch.Tensor:
-        return self.critic(self.encoder(obs)).squeeze(-1)
+        encoder = self.encoder if self.critic_encoder is None else self.critic_encoder
+        return self.critic(encoder(obs)).squeeze(-1)
 
     def get_action_and_value(self, obs: torch.Tensor, action: torch.Tensor | None = None):
-        hidden = self.encoder(obs)
-        dist = Categorical(logits=self.actor(hidden))
+        actor_hidden, critic_hidden = self.features(obs)
+        dist = Categorical(logits=self.actor(actor_hidden))
         if action is None:
             action = dist.sample()
-        return action, dist.log_prob(action), dist.entropy(), self.critic(hidden).squeeze(-1)
+        return action, dist.log_prob(action), dist.entropy(), self.critic(critic_hidden).squeeze(-1)
 
     def act(self, obs: torch.Tensor):
         """Sampled actions, their log-probabilities and the states' values (no entropy)."""
-        hidden = self.encoder(obs)
-        dist = Categorical(logits=self.actor(hidden))
+        actor_hidden, critic_hidden = self.features(obs)
+        dist = Categorical(logits=self.actor(actor_hidden))
         action = dist.sample()
-        return action, dist.log_prob(action), self.critic(hidden).squeeze(-1)
+        return action, dist.log_prob(action), self.critic(critic_hidden).squeeze(-1)
 
     def evaluate(self, obs: torch.Tensor, action: torch.Tensor):
         """One pass over a minibatch: log-probabilities and entropies of the `len(action)`
         first states' actions, and the values of all `len(obs)` states (the rest: states
         inside routines)."""
-        hidden = self.encoder(obs)
-        dist = Categorical(logits=self.actor(hidden[: len(action)]))
-        return dist.log_prob(action), dist.entropy(), self.critic(hidden).squeeze(-1)
+        actor_hidden, critic_hidden = self.features(obs, len(action))
+        dist = Categorical(logits=self.actor(actor_hidden))
+        return dist.log_prob(action), dist.entropy(), self.critic(critic_hidden).squeeze(-1)
 
 
 #: What a checkpoint of this script holds (`--resume` checks for each).

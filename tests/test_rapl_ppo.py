@@ -345,6 +345,25 @@ def test_each_family_has_its_defaults_and_a_given_flag_wins(rapl_ppo):
     assert resolved(env_id="MiniQbert-v0", num_envs=16, gamma=0.9)[-1] == 0.9
 
 
+def test_flat_observations_get_a_critic_torso_of_their_own_and_images_share_one(rapl_ppo):
+    import gymnasium as gym
+
+    # CleanRL's ppo.py: actor and critic MLPs apart, so the value's gradient leaves the
+    # policy's torso alone; ppo_atari.py / ppo_procgen.py: one CNN for both.
+    flat = rapl_ppo.Agent("CartPole-v1", gym.spaces.Box(-1, 1, (4,), np.float32), 2)
+    flat.get_value(torch.ones(3, 4)).sum().backward()
+    assert all(p.grad is None for p in flat.encoder.parameters())
+    assert all(p.grad is not None for p in flat.critic_encoder.parameters())
+    logprob, entropy, values = flat.evaluate(torch.ones(5, 4), torch.zeros(2, dtype=torch.long))
+    assert logprob.shape == entropy.shape == (2,) and values.shape == (5,)
+
+    image = rapl_ppo.Agent("MinAtar/Breakout-v1",
+                           gym.spaces.Box(0, 1, (4, 10, 10), np.float32), 3)
+    assert image.critic_encoder is None
+    image.get_value(torch.ones(2, 4, 10, 10)).sum().backward()
+    assert all(p.grad is not None for p in image.encoder.parameters())
+
+
 def test_bad_ppo_settings_are_refused_by_name(rapl_ppo, tmp_path):
     with pytest.raises(UsageError, match=r"--num-minibatches needs to be ≤ --num-envs × "
                                          r"--num-steps \(16\), actual value: 32"):
