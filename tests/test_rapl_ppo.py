@@ -364,6 +364,17 @@ def test_flat_observations_get_a_critic_torso_of_their_own_and_images_share_one(
     assert all(p.grad is not None for p in image.encoder.parameters())
 
 
+def test_target_kl_stops_a_rollouts_epochs_after_the_first(rapl_ppo, tmp_path):
+    # 4 updates of 2 envs × 8 steps, 2 minibatches: 2 epochs make 16 Adam steps; with a KL
+    # target every big step overshoots (lr 0.01), each rollout stops after one epoch: 8.
+    steps = {}
+    for target in (None, 1e-6):
+        folder = run(rapl_ppo, tmp_path / str(target), env_id="CartPole-v1", mode="ppo",
+                     learning_rate=0.01, target_kl=target, checkpoint_every=16)
+        steps[target] = adam_steps(torch.load(folder / "checkpoint.pt", weights_only=True))
+    assert steps == {None: 4 * 2 * 2, 1e-6: 4 * 1 * 2}
+
+
 def test_bad_ppo_settings_are_refused_by_name(rapl_ppo, tmp_path):
     with pytest.raises(UsageError, match=r"--num-minibatches needs to be ≤ --num-envs × "
                                          r"--num-steps \(16\), actual value: 32"):
