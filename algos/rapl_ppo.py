@@ -99,7 +99,9 @@ class Args:
     wandb_entity: str | None = None
     """the W&B entity (team) of --track (default: your W&B default entity)"""
     capture_video: bool = False
-    """whether to capture videos of the agent (in `videos/`)"""
+    """whether to film the agent as GIFs: the first 3 evaluation episodes in `{run}/videos/`, each
+    frame captioned with the action or routine step it executes, and training env 0's episodes
+    0, 1, 8, 27, ... in `videos/{run_name}/`"""
 
     # Algorithm (None: the env family's default, FAMILY_DEFAULTS)
     env_id: str = "ALE/Qbert-v5"
