@@ -171,8 +171,9 @@ class Args:
     """λ_length in the routine score f + λ·len"""
     alpha: int = 2
     """Levenshtein distance under which similar routines are pruned"""
-    proposer: Literal["full", "random", "enumerate", "random-fetch", "repeat"] = "full"
-    """full: Sequitur (the paper's model); the others are the discovery ablations"""
+    proposer: Literal["full", "random", "enumerate", "random-fetch", "repeat", "bpe"] = "full"
+    """full: Sequitur (the paper's model); bpe: byte-pair encoding; the others are the discovery
+    ablations"""
     min_routine_length: int = 2
     """ignore routine candidates shorter than this"""
     max_routine_length: int = 64
