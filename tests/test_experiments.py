@@ -37,7 +37,8 @@ def test_the_seven_experiments_and_four_budgets():
 @pytest.mark.parametrize(("name", "runs", "steps"), [
     # 6 games (MinAtar's five and MiniQbert) × 3 seeds × 4 methods; BC counts gradient steps.
     ("imitation", 72, 18 * (10_000 + 500_000 + 2 * 100_000)),
-    ("rl", 36, 36 * 10**6),  # 6 games × 3 seeds × {A2C, RAPL-A2C}
+    # 6 games × 3 seeds × {A2C, RAPL-A2C, PPO, RAPL-PPO, MacroAction-PPO}
+    ("rl", 90, 90 * 10**6),
     ("curves", 75, 75 * 10**6),  # 5 games × 3 seeds × 5 methods
     ("coinrun", 6, 6 * 500_000),  # 3 seeds × {A2C, RAPL-A2C}
     # 5 games × 3 seeds × (A2C + 2 methods × {K 1, 3, 6 at length 2; length 5 at K 3}),
@@ -172,7 +173,8 @@ def test_bad_experiment_requests_are_one_line_errors(kwargs, match):
 def test_seeds_and_envs_select_runs():
     entries = build("rl", "cpu", seeds=[2], envs=["MinAtar/Breakout-v1"])
     assert {(e.method, e.env_id, e.seed) for e in entries} == {
-        ("A2C", "MinAtar/Breakout-v1", 2), ("RAPL-A2C", "MinAtar/Breakout-v1", 2)}
+        (m, "MinAtar/Breakout-v1", 2)
+        for m in ("A2C", "RAPL-A2C", "PPO", "RAPL-PPO", "MacroAction-PPO")}
 
 
 def test_command_resolves_run_references_and_resumes_from_a_checkpoint(tmp_path):
@@ -254,6 +256,20 @@ def test_smoke_sweep_of_all_seven_finishes_every_run(local_sweep):
     assert counters[("RAPL-A2C", None)]["bins"]["updates"][-1] == counters[("RAPL-A2C", None)][
         "updates"]
     assert "[diagnosis] runs 5/5 done" in printed
+    # rl runs rapl_ppo.py's three modes beside A2C's, each to its evaluation; a run's
+    # counters say which mode it was (PPO: one step a decision; the others chose routines).
+    assert "[rl] runs 5/5 done, 0 running, 0 failed · agent steps 5,000/5,000" in printed
+    rl = {r["method"]: json.loads((out / "runs" / r["key"] / "result.json").read_text())
+          for r in json.loads((out / "rl.json").read_text())["runs"]}
+    assert set(rl) == {"A2C", "RAPL-A2C", "PPO", "RAPL-PPO", "MacroAction-PPO"}
+    for method, name, mode in (("PPO", "ppo", "ppo"), ("RAPL-PPO", "rapl-ppo", "rapl"),
+                               ("MacroAction-PPO", "macro-ppo", "macro")):
+        result = rl[method]
+        assert result["eval"]["method"] == name, method
+        assert result["run_dir"].split("__")[1] == f"rapl_ppo-{mode}", method
+        assert result["counters"]["primitive_steps"] >= 1000
+    assert rl["PPO"]["counters"]["steps_per_decision"] == 1.0
+    assert rl["RAPL-PPO"]["counters"]["steps_per_decision"] > 1.0
 
 
 @pytest.mark.slow
@@ -309,7 +325,7 @@ def test_a_snapshot_keeps_results_not_checkpoints_and_continues_as_a_sweep(local
         f"# routine-gym report: `{dest}`\n")
     assert {p.parent.name for p in dest.glob("runs/*/result.json")} == set(_results(out))
     provenance = json.loads((dest / "provenance.json").read_text())
-    assert provenance["experiments"]["rl"] == {"runs": 2, "finished": 2}
+    assert provenance["experiments"]["rl"] == {"runs": 5, "finished": 5}
     assert len(provenance["snapshots"]) == 1
     # A new machine continues from the snapshot: nothing is rerun, and Fig. 3 is drawn from
     # the curves kept in result.json (the TensorBoard logs stayed behind).
@@ -332,14 +348,15 @@ def test_a_snapshot_keeps_results_not_checkpoints_and_continues_as_a_sweep(local
 
 @pytest.mark.slow
 def test_smoke_sweeps_through_a_real_local_ray_instance(tmp_path):
-    # The local sweep above runs all six; through Ray, the three that differ in kind (plain
-    # runs; CoinRun's extra evaluations; the ablation's experts whose demos the ID runs need),
-    # which keeps the suite within its time on two cores. One Ray instance serves the sweeps
+    # The local sweep above runs all seven; through Ray, the two that differ in kind (CoinRun's
+    # extra evaluations; the ablation's plain runs and its experts whose demos the ID runs
+    # need), which keeps the suite within its time on two cores (rl's runs, rapl_ppo's among
+    # them, are plain runs: the local sweep has them). One Ray instance serves the sweeps
     # (a sweep joins the instance its process already has); a sweep starting its own is covered
     # by the kill test below.
     ray = pytest.importorskip("ray")
     out = tmp_path / "ray"
-    names = ("rl", "coinrun", "ablation")
+    names = ("coinrun", "ablation")
     os.environ.setdefault("RAY_AUTH_MODE", "disabled")
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
              configure_logging=False)
@@ -464,7 +481,7 @@ def test_cli_list_shows_every_experiment_with_its_runs_per_budget():
     rows = {line.split()[0]: line for line in proc.stdout.splitlines() if line[:1].isalpha()}
     for name in NAMES:
         assert name in rows
-    assert "36 runs 36.0M steps" in rows["rl"] and "325 runs" in rows["rl"]
+    assert "90 runs 90.0M steps" in rows["rl"] and "325 runs" in rows["rl"]
     assert "125 runs" in rows["ablation"]
     assert "90 runs 90.0M steps" in rows["diagnosis"]
 
@@ -475,8 +492,8 @@ def test_a_sweep_of_some_seeds_lists_the_whole_experiment(tmp_path, monkeypatch)
     sweep.run_experiment("rl", "cpu", tmp_path, seeds=[1], envs=["MinAtar/Breakout-v1"],
                          stream=io.StringIO())
     manifest = json.loads((tmp_path / "rl.json").read_text())
-    assert len(manifest["runs"]) == 36  # the whole experiment: the report counts the rest
-    assert len(ran) == 2  # only A2C and RAPL-A2C, seed 1, Breakout ran
+    assert len(manifest["runs"]) == 90  # the whole experiment: the report counts the rest
+    assert len(ran) == 5  # only A2C, RAPL-A2C and the three PPO runs, seed 1, Breakout ran
 
 
 class _NoRuns:

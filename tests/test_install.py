@@ -124,7 +124,11 @@ def test_installed_experiment_runs_the_scripts_shipped_in_the_package(installed,
                 "rl", "--budget", "smoke", "--out", str(out), "--jobs", "2")
     assert proc.returncode == 0, proc.stdout + proc.stderr
     results = sorted(out.glob("runs/*/result.json"))
-    assert len(results) == 2
+    assert len(results) == 5  # A2C, RAPL-A2C (rapl_a2c.py), PPO, RAPL-PPO, MacroAction-PPO
+    scripts = []
     for result in results:
         log = (result.parent / "log.txt").read_text()
-        assert str(installed["site"] / "routine_gym" / "algos" / "rapl_a2c.py") in log
+        script = json.loads((result.parent / "config.json").read_text())["script"]
+        assert str(installed["site"] / "routine_gym" / "algos" / f"{script}.py") in log
+        scripts.append(script)
+    assert sorted(scripts) == ["rapl_a2c"] * 2 + ["rapl_ppo"] * 3

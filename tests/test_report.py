@@ -106,6 +106,19 @@ def _patch_references(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     return played
 
 
+#: The rl experiment's PPO runs by (method, game): each seed's score, None: not finished. Only
+#: some finished: RAPL-PPO's seed 2 on Asterix is missing and MacroAction-PPO has no Asterix run.
+PPO_SCORES = {("PPO", BREAKOUT): (4, 8), ("RAPL-PPO", BREAKOUT): (6, 9),
+              ("MacroAction-PPO", BREAKOUT): (3, 5), ("PPO", ASTERIX): (10, 10),
+              ("RAPL-PPO", ASTERIX): (12, None)}
+
+
+def _ppo_runs(sweep: Sweep) -> None:
+    for (method, env_id), scores in PPO_SCORES.items():
+        for seed, score in enumerate(scores, start=1):
+            sweep.run("rl", method, env_id, seed, score)
+
+
 def _full_sweep(out: Path) -> tuple[Sweep, str]:
     sweep = Sweep(out)
     for method, (score, alignment) in IMITATION.items():
@@ -120,6 +133,7 @@ def _full_sweep(out: Path) -> tuple[Sweep, str]:
             sweep.run("rl", "A2C", env_id, seed, a2c[seed - 1])
             sweep.run("rl", "RAPL-A2C", env_id, seed, rapl[seed - 1])
     missing = sweep.run("rl", "RAPL-A2C", BREAKOUT, 3, None)
+    _ppo_runs(sweep)
 
     finals = {"A2C": (4, 6), "MacroAction": (5, 5), "OptionCritic": (3, 3), "CompILE": (1, 3),
               "RAPL-A2C": (9, 10)}
@@ -213,12 +227,93 @@ def test_report_md_counts_games_and_lists_missing_runs(full):
     assert "Latest finished run: 2026-12-02T10:00:00Z" in text
     assert "same or better than A2C (S_R ≥ S_A) on 1 of 2 games" in text
     assert "paper: same or better on 25 of 33" in text
-    assert f"8 of 9 runs finished; missing: `{missing}` (RAPL-A2C, {BREAKOUT}, seed 3)" in text
+    assert f"17 of 19 runs finished; missing: `{missing}` (RAPL-A2C, {BREAKOUT}, seed 3), `" \
+        in text and f"(RAPL-PPO, {ASTERIX}, seed 2)" in text
     # IQM of the normalised final scores of rl (see test_normalised_scores_and_iqm_by_hand).
     assert "| A2C | 45.0 % [" in text and "| RAPL-A2C | 50.0 % [" in text
     # The paper's Table 1 numbers sit beside ours.
     assert "| RAPL-SQIL | 0.610 ± 0.011 |" in text and "| 0.34 | 36.1 % |" in text
     assert "Normalisation" in text and "raw" in text
+
+
+def test_fig2_ppo_csv_and_table_by_hand(full):
+    out, _, _ = full
+    rows = _rows(out / "report" / "fig2_rl_ppo.csv")
+    assert [r["env_id"] for r in rows] == [BREAKOUT, ASTERIX]  # RAPL-PPO's +25 %, then +20 %
+    breakout, asterix = rows
+    # Breakout: PPO 4, 8 → S 6; RAPL-PPO 6, 9 → 7.5: +25 %, s.e. 1.5 (std 3/√2, over √2)
+    # → 1.5/6 = 25 %; MacroAction-PPO 3, 5 → 4: −33.3 %, s.e. 1 → 16.7 %; RAPL-A2C over A2C
+    # from Fig. 2: +40 % ± 20 %.
+    assert (breakout["runs_ppo"], breakout["runs_rapl_ppo"], breakout["runs_macro_ppo"]) == (
+        "2", "2", "2")
+    assert [float(breakout[c]) for c in ("S_PPO", "S_RAPL_PPO", "S_MacroAction_PPO")] == [
+        6.0, 7.5, 4.0]
+    assert float(breakout["rapl_ppo_relative_pct"]) == pytest.approx(25.0)
+    assert float(breakout["rapl_ppo_error_pct"]) == pytest.approx(25.0)
+    assert float(breakout["macro_ppo_relative_pct"]) == pytest.approx(-100 / 3)
+    assert float(breakout["macro_ppo_error_pct"]) == pytest.approx(100 / 6)
+    assert float(breakout["rapl_a2c_relative_pct"]) == pytest.approx(40.0)
+    assert float(breakout["rapl_a2c_error_pct"]) == pytest.approx(20.0)
+    # Asterix: PPO 10, 10; RAPL-PPO one finished run, 12: +20 % ± 0 (one run); no
+    # MacroAction-PPO: empty; RAPL-A2C 8, 9 over A2C 10, 10: −15 % ± 5 %.
+    assert (asterix["runs_ppo"], asterix["runs_rapl_ppo"], asterix["runs_macro_ppo"]) == (
+        "2", "1", "0")
+    assert float(asterix["rapl_ppo_relative_pct"]) == pytest.approx(20.0)
+    assert float(asterix["rapl_ppo_error_pct"]) == 0.0
+    assert asterix["S_MacroAction_PPO"] == asterix["macro_ppo_relative_pct"] == ""
+    assert float(asterix["rapl_a2c_relative_pct"]) == pytest.approx(-15.0)
+    text = (out / "report" / "report.md").read_text()
+    assert (f"| {BREAKOUT} | 2/2/2 | 6.00 | 7.50 | 4.00 | 25.0 % ± 25.0 % | -33.3 % ± 16.7 % | "
+            "40.0 % ± 20.0 % |") in text
+    assert (f"| {ASTERIX} | 2/1/0 | 10.00 | 12.00 | – | 20.0 % ± 0.0 % | – | "
+            "-15.0 % ± 5.0 % |") in text
+    assert "RAPL-PPO same or better than PPO (S ≥ S_PPO) on 2 of 2 games" in text
+    # The PPO aggregate: Breakout alone (MacroAction-PPO has no Asterix run), demo-normalised
+    # (random 0, demo 10): PPO {0.4, 0.8} → IQM 0.6, RAPL-PPO {0.6, 0.9} → 0.75, MacroAction-PPO
+    # {0.3, 0.5} → 0.4. P(RAPL-PPO > PPO): 6 beats 4, 9 beats 4 and 8, 6 loses to 8: 3/4;
+    # P(MacroAction-PPO > PPO): only 5 > 4 of the four pairs: 1/4.
+    ppo = text[text.index("**PPO, beyond the paper**"):text.index("## Fig. 3")]
+    assert f"Left out of the aggregates: {ASTERIX}" in ppo
+    for line in ("| PPO | 60.0 % [", "| RAPL-PPO | 75.0 % [", "| MacroAction-PPO | 40.0 % [",
+                 "| RAPL-PPO > PPO | 0.75 [", "| RAPL-PPO > MacroAction-PPO | 1.00 [1.00, 1.00] |",
+                 "| MacroAction-PPO > PPO | 0.25 ["):
+        assert line in ppo, line
+    assert ppo.count("Probability of improvement") == 1  # one table of the three pairs
+
+
+def test_the_ppo_part_leaves_fig2_as_it_was_and_needs_no_ppo_run(tmp_path, monkeypatch):
+    """The same A2C runs with the PPO runs, without them (a sweep from before) and with only
+    PPO's finished: Fig. 2's CSV, PNG and table are the same bytes wherever A2C ran."""
+    _patch_references(monkeypatch)
+    folders = {}
+    for case in ("with", "without", "ppo only"):
+        sweep = Sweep(tmp_path / case)
+        for env_id, a2c, rapl in ((BREAKOUT, (4, 6), (6, 8)), (ASTERIX, (10, 10), (8, 9))):
+            for seed in (1, 2):
+                if case != "ppo only":
+                    sweep.run("rl", "A2C", env_id, seed, a2c[seed - 1])
+                    sweep.run("rl", "RAPL-A2C", env_id, seed, rapl[seed - 1])
+        if case != "without":
+            _ppo_runs(sweep)
+        sweep.write()
+        report.write_report(sweep.out, reps=REPS)
+        folders[case] = sweep.out / "report"
+    with_ppo, without = folders["with"], folders["without"]
+    for name in ("fig2_rl.csv", "fig2_rl.png"):
+        assert (with_ppo / name).read_bytes() == (without / name).read_bytes(), name
+    assert not list(without.glob("fig2_rl_ppo.*"))
+    a2c_part = (without / "report.md").read_text()
+    a2c_part = a2c_part[a2c_part.index("Figure: `fig2_rl.png`"):a2c_part.index("## Fig. 3")]
+    text = (with_ppo / "report.md").read_text()
+    assert text[text.index("Figure: `fig2_rl.png`"):text.index("**PPO, beyond")] == a2c_part
+    assert "8 of 8 runs finished" in (without / "report.md").read_text()
+    # Only PPO's runs: an empty Fig. 2, the PPO part as in the full sweep.
+    only = folders["ppo only"]
+    assert (only / "fig2_rl_ppo.csv").read_text() == (with_ppo / "fig2_rl_ppo.csv").read_text(
+        ).replace("40.0,20.0", ",").replace("-15.0,5.0", ",")
+    assert _rows(only / "fig2_rl.csv") == []
+    assert "RAPL-PPO same or better than PPO (S ≥ S_PPO) on 2 of 2 games" in (
+        only / "report.md").read_text()
 
 
 def test_bin_curve_means_episodes_per_bin_and_carries_forward():

@@ -114,7 +114,7 @@ def test_a_relative_out_trains_in_place_and_one_sweep_holds_the_folder_at_a_time
     assert third.returncode == 0, third.stdout + third.stderr
     assert f"into {out}\n" in third.stdout  # the folder made absolute once
     keys = {r["key"] for r in json.loads((out / "rl.json").read_text())["runs"]}
-    assert len(keys) == 2
+    assert len(keys) == 5  # A2C, RAPL-A2C, PPO, RAPL-PPO, MacroAction-PPO
     for key in keys:
         folder = out / "runs" / key
         result = json.loads((folder / "result.json").read_text())
@@ -126,7 +126,7 @@ def test_a_relative_out_trains_in_place_and_one_sweep_holds_the_folder_at_a_time
 
     fourth = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert fourth.returncode == 0, fourth.stderr
-    assert "2 finished before, 0 to run" in fourth.stdout
+    assert "5 finished before, 0 to run" in fourth.stdout
 
 
 def _hold(folder: Path) -> subprocess.Popen:

@@ -29,6 +29,10 @@ COLOURS = {
     "GAIL": "#e377c2",
     "SQIL": "#17becf",
     "RAPL-SQIL": "#ff7f0e",
+    # The PPO family (rl at the budgets with `rl_ppo`), darker shades of their A2C kin.
+    "PPO": "#252525",
+    "RAPL-PPO": "#843c39",
+    "MacroAction-PPO": "#3182bd",
 }
 #: The colour of a label no method or experiment has a colour for.
 OTHER_COLOUR = "#333333"

@@ -22,7 +22,7 @@ from routine_gym.experiments.statistics import (
 from routine_gym.experiments.writing import Writer, interval, num, table
 
 __all__ = ["Aggregate", "aggregate", "aggregate_lines", "group_runs", "norm_axis_label", "ordered",
-           "per_env_means", "poi_lines"]
+           "per_env_means", "poi_lines", "poi_pairs_lines"]
 
 
 def ordered(names: Iterable[str], order: Sequence[str]) -> list[str]:
@@ -98,8 +98,15 @@ def aggregate_lines(w: Writer, agg: Aggregate, what: str = "final score") -> lis
 
 
 def poi_lines(w: Writer, agg: Aggregate, winner: str, others: Sequence[str]) -> list[str]:
+    """The probability of improvement of `winner` over each of `others` (a table)."""
+    return poi_pairs_lines(w, agg, [(winner, other) for other in others])
+
+
+def poi_pairs_lines(w: Writer, agg: Aggregate, pairs: Sequence[tuple[str, str]]) -> list[str]:
+    """The probability of improvement P(X > Y) of each pair `(X, Y)` whose groups both have a
+    matrix, in one table; nothing when none has."""
     rows = []
-    for other in others:
+    for winner, other in pairs:
         if winner in agg.matrices and other in agg.matrices:
             rows.append((f"{winner} > {other}", interval(probability_of_improvement(
                 agg.matrices[winner], agg.matrices[other], reps=w.reps, seed=w.seed),

@@ -17,6 +17,10 @@ Budgets:
   3 seeds, with RAPL-A2C as the authors' code has it beside A2C and RAPL-A2C (about a day on a
   2-core CPU, so a checkpoint every tenth of a run); the other experiments have no runs there.
 
+The rl experiment also runs PPO, RAPL-PPO and MacroAction-PPO (`algos/rapl_ppo.py`, issue 29)
+where a budget opts in (`rl_ppo`: smoke and cpu): added beside the A2C runs, whose keys and
+flags stay as they were, so a sweep folder from before runs only the PPO runs.
+
 Demos: a game with a shipped demo (`routine_gym.demo.DEMO_SUITE`, MiniQbert's scripted one) uses
 it; any other game first trains an A2C expert with `--record-demo` (a run of role `expert`) and
 every run of that game reads the demo it recorded. The ablation's ID variant always reads a
@@ -127,6 +131,7 @@ class Budget:
     checkpoints: int = 5  # a run saves a checkpoint every `steps // checkpoints` steps
     experiments: tuple[str, ...] | None = None  # the experiments with runs here; None: all
     rl_authors: bool = False  # rl adds RAPL-A2C as the authors' code has it (diagnosis's run)
+    rl_ppo: bool = False  # rl adds PPO, RAPL-PPO and MacroAction-PPO (`rapl_ppo.py`)
 
     def checkpoint_every(self, steps: int) -> int:
         """The `--checkpoint-every` of a run of `steps`: a `checkpoints`-th of it (at least 1).
@@ -151,7 +156,7 @@ BUDGETS: dict[str, Budget] = {
         eval_episodes=1, scalability_k=(1, 3), scalability_lengths=(2, 4), demo_episodes=1,
         num_envs=4, compile_flags=(("compile-iterations", 20), ("compile-option-steps", 20)),
         # Freeway's episodes last 2,500 steps: even a barely trained expert's demo has routines.
-        ablation_games=("MinAtar/Freeway-v1",)),
+        ablation_games=("MinAtar/Freeway-v1",), rl_ppo=True),
     "cpu": Budget(
         name="cpu",
         description="MinAtar's five games (and MiniQbert, CoinRun) at 10^6 agent steps, "
@@ -160,7 +165,7 @@ BUDGETS: dict[str, Budget] = {
         imitation_games=(*MINATAR, "MiniQbert-v0"), steps=1_000_000, coinrun_steps=500_000,
         sqil_steps=100_000, gail_steps=500_000, bc_steps=10_000, expert_steps=5_000_000,
         shipped_expert_steps=5_000_000, eval_episodes=30, scalability_k=(1, 3, 6),
-        scalability_lengths=(2, 5)),
+        scalability_lengths=(2, 5), rl_ppo=True),
     "paper": Budget(
         name="paper",
         description="the paper's settings: 30 Atari games, 10^7 agent steps, 5 seeds "
@@ -211,7 +216,7 @@ def shipped_demo_has_routine(env_id: str, min_length: int) -> bool:
 
 
 #: Scripts that step several envs (`--num-envs`), and BC's budget flag.
-VECTOR_SCRIPTS = ("rapl_a2c", "option_critic", "compile_a2c", "gail")
+VECTOR_SCRIPTS = ("rapl_a2c", "rapl_ppo", "option_critic", "compile_a2c", "gail")
 STEPS_FLAG = {"bc": "gradient-steps"}
 
 
@@ -220,7 +225,7 @@ STEPS_FLAG = {"bc": "gradient-steps"}
 #: swamp the value loss at 1 (`bench/results/learning_miniqbert_scaled.md`).
 REWARD_SCALES = {"MiniQbert-v0": 0.01}
 #: The scripts with `--reward-scale`.
-SCALED_SCRIPTS = ("rapl_a2c", "option_critic", "compile_a2c")
+SCALED_SCRIPTS = ("rapl_a2c", "rapl_ppo", "option_critic", "compile_a2c")
 
 
 def _common(budget: Budget, script: str, env_id: str, seed: int,
@@ -247,7 +252,8 @@ def expert(budget: Budget, env_id: str, steps: int) -> Entry:
 
 class Builder:
     """Collects an experiment's entries at a budget; the experts behind demos are added once
-    each. An experiment's `add_runs` calls `run` (any script) or `a2c` (`rapl_a2c.py`)."""
+    each. An experiment's `add_runs` calls `run` (any script), `a2c` (`rapl_a2c.py`) or `ppo`
+    (`rapl_ppo.py`)."""
 
     def __init__(self, budget: Budget) -> None:
         self.budget = budget
@@ -298,6 +304,16 @@ class Builder:
         return self.run("rapl_a2c", method, env_id, seed,
                         steps if steps is not None else self.budget.steps, flags, variant,
                         demo=mode != "a2c", expert_steps=expert_steps)
+
+    def ppo(self, method: str, env_id: str, seed: int, variant: dict | None = None,
+            steps: int | None = None, extra: Sequence[tuple[str, Any]] = ()) -> Entry:
+        """A `rapl_ppo.py` run of `method` (PPO, RAPL-PPO or MacroAction-PPO), its demo handled
+        as `a2c`'s (RAPL-PPO and MacroAction-PPO mine the same demo as RAPL-A2C: shipped, or
+        recorded by the same expert); the env family's PPO defaults, so flags left unset."""
+        mode = {"PPO": "ppo", "RAPL-PPO": "rapl", "MacroAction-PPO": "macro"}[method]
+        return self.run("rapl_ppo", method, env_id, seed,
+                        steps if steps is not None else self.budget.steps,
+                        [("mode", mode), *extra], variant, demo=mode != "ppo")
 
     def seeds(self) -> range:
         return range(1, self.budget.seeds + 1)
