@@ -257,20 +257,17 @@ def qbert_demo(env_id: str, requested: str | None, workdir: Path) -> tuple[str, 
 # ---------------------------------------------------------------------------------------------
 
 
-def run_ours(name: str, config: Config, args, demo: str, run_dir: Path, repeat: int) -> Result:
-    """Run `rapl_a2c.py` in a subprocess and time its progress lines as they arrive."""
-    mode, threads = config.mode, config.threads
-    total = args.warmup + args.steps
-    cmd = [sys.executable, str(SCRIPT), "--env-id", args.env_id, "--mode", mode,
-           "--num-envs", str(args.num_envs), "--total-timesteps", str(total),
-           "--eval-episodes", "0", "--log-every", str(args.log_every),
-           "--torch-threads", str(threads), "--run-dir", str(run_dir), "--seed", "1"]
-    if mode != "a2c":
-        cmd += ["--demo", demo]
-    if config.async_envs:
-        cmd.append("--async-envs")
-    result = Result(name, repeat, shlex.join(cmd), str(threads), load_average())
-    stamps: list[tuple[float, int, int, float, float | None]] = []
+#: A progress line's arrival: (perf_counter time, step, script SPS, routine use %, CPU seconds of
+#: the process tree or None).
+Stamp = tuple[float, int, int, float, "float | None"]
+
+
+def stream_progress(cmd: list[str]) -> tuple[list[Stamp], list[str], int, str]:
+    """Run a script's command line in a subprocess, stamping each progress line as it arrives.
+
+    Returns the stamps, the output lines before the first progress line, the exit code and
+    stderr."""
+    stamps: list[Stamp] = []
     header: list[str] = []
     with tempfile.TemporaryFile("w+") as err:
         proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=err, text=True,
@@ -285,9 +282,26 @@ def run_ours(name: str, config: Config, args, demo: str, run_dir: Path, repeat: 
                                tree_cpu_seconds(proc.pid)))
             elif not stamps:
                 header.append(line.rstrip())
-        result.returncode = proc.wait()
+        returncode = proc.wait()
         err.seek(0)
         stderr = err.read()
+    return stamps, header, returncode, stderr
+
+
+def run_ours(name: str, config: Config, args, demo: str, run_dir: Path, repeat: int) -> Result:
+    """Run `rapl_a2c.py` in a subprocess and time its progress lines as they arrive."""
+    mode, threads = config.mode, config.threads
+    total = args.warmup + args.steps
+    cmd = [sys.executable, str(SCRIPT), "--env-id", args.env_id, "--mode", mode,
+           "--num-envs", str(args.num_envs), "--total-timesteps", str(total),
+           "--eval-episodes", "0", "--log-every", str(args.log_every),
+           "--torch-threads", str(threads), "--run-dir", str(run_dir), "--seed", "1"]
+    if mode != "a2c":
+        cmd += ["--demo", demo]
+    if config.async_envs:
+        cmd.append("--async-envs")
+    result = Result(name, repeat, shlex.join(cmd), str(threads), load_average())
+    stamps, header, result.returncode, stderr = stream_progress(cmd)
     result.extra["routines"] = [h.strip() for h in header if h.strip().startswith("[")]
     if result.returncode != 0:
         result.error = stderr.strip().splitlines()[-1] if stderr.strip() else "no output"

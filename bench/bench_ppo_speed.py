@@ -28,17 +28,14 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import os
 import shlex
 import statistics
-import subprocess
 import sys
 import tempfile
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from bench_a2c_speed import PROGRESS, other_processes, tree_cpu_seconds
+from bench_a2c_speed import other_processes, stream_progress
 from common import base_machine_info, git_head, load_average, memory, thread_env_vars
 
 REPO = Path(__file__).resolve().parents[1]
@@ -87,19 +84,8 @@ def run_config(name: str, args, run_dir: Path, repeat: int) -> Result:
     if mode == "rapl":
         cmd += ["--demo", args.demo]
     result = Result(name, repeat, shlex.join(cmd), load_average())
-    stamps: list[tuple[float, int, float, float | None]] = []
-    with tempfile.TemporaryFile("w+") as err:
-        proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=err, text=True,
-                                bufsize=1, env={**os.environ, "PYTHONUNBUFFERED": "1"})
-        assert proc.stdout is not None
-        for line in iter(proc.stdout.readline, ""):
-            match = PROGRESS.match(line.strip())
-            if match:
-                stamps.append((time.perf_counter(), int(match.group(1).replace(",", "")),
-                               float(match.group(3)), tree_cpu_seconds(proc.pid)))
-        returncode = proc.wait()
-        err.seek(0)
-        stderr = err.read().strip()
+    stamps, _, returncode, stderr = stream_progress(cmd)
+    stderr = stderr.strip()
     if returncode != 0:
         result.error = stderr.splitlines()[-1] if stderr else f"exit code {returncode}"
         return result
@@ -111,9 +97,9 @@ def run_config(name: str, args, run_dir: Path, repeat: int) -> Result:
     result.start_step, result.end_step = start[1], end[1]
     result.seconds = end[0] - start[0]
     result.sps = (end[1] - start[1]) / result.seconds
-    result.routine_use = end[2]
-    if start[3] is not None and end[3] is not None and end[3] > start[3]:
-        result.cpu_seconds = end[3] - start[3]
+    result.routine_use = end[3]
+    if start[4] is not None and end[4] is not None and end[4] > start[4]:
+        result.cpu_seconds = end[4] - start[4]
     return result
 
 
