@@ -6,16 +6,14 @@ from __future__ import annotations
 
 import json
 import math
-import signal
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from resume_checks import kill_after_first_checkpoint
 from script_loader import load_script
 
 from routine_gym.baselines.compile import (
@@ -470,22 +468,7 @@ def test_killed_run_resumes_with_its_own_options(compile_a2c, tmp_path, repo_roo
         "--eval-episodes", "0", "--compile-iterations", "3", "--compile-batch-size", "4",
         "--compile-option-steps", "2", "--torch-threads", "1", "--run-dir", str(tmp_path),
     ]
-    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
-    try:
-        deadline = time.monotonic() + 90
-        while not list(tmp_path.glob("*/checkpoint.pt")):
-            assert proc.poll() is None, proc.stdout.read().decode()
-            assert time.monotonic() < deadline, "no checkpoint within 90 s"
-            time.sleep(0.01)
-        proc.send_signal(signal.SIGKILL)  # a crash: no clean-up, no final checkpoint
-        proc.wait(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        proc.stdout.close()
-    assert proc.returncode == -signal.SIGKILL, "the run finished before it could be killed"
-    (checkpoint_path,) = tmp_path.glob("*/checkpoint.pt")
+    checkpoint_path = kill_after_first_checkpoint(command, tmp_path, timeout=90)
     killed_at = torch.load(checkpoint_path, weights_only=True)["global_step"]
     assert 300 <= killed_at < 3000
     saved_model, saved_meta = load_compile(checkpoint_path.parent / "compile_model.pt")

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from resume_checks import assert_same
 from script_loader import load_script
 
 import routine_gym  # noqa: F401  (registers MiniQbert-v0)
@@ -62,23 +63,6 @@ def load(folder: Path) -> dict:
 def evaluation(folder: Path) -> dict:
     with open(folder / "eval.json") as f:
         return json.load(f)
-
-
-def assert_same(a, b) -> None:
-    """Nested dicts and lists of tensors and numbers are exactly equal."""
-    assert type(a) is type(b)
-    if isinstance(a, torch.Tensor):
-        assert torch.equal(a, b)
-    elif isinstance(a, dict):
-        assert a.keys() == b.keys()
-        for key in a:
-            assert_same(a[key], b[key])
-    elif isinstance(a, list | tuple):
-        assert len(a) == len(b)
-        for x, y in zip(a, b, strict=True):
-            assert_same(x, y)
-    else:
-        assert a == b
 
 
 def test_bc_resumed_after_a_kill_trains_exactly_as_an_uninterrupted_run(tmp_path, monkeypatch,

@@ -4,14 +4,12 @@ every env family, killed and resumed."""
 from __future__ import annotations
 
 import json
-import signal
-import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
 import torch
+from resume_checks import kill_after_first_checkpoint
 from script_loader import load_script
 
 from routine_gym.baselines.option_critic import (
@@ -138,22 +136,7 @@ def test_killed_option_critic_resumes_and_finishes(option_critic, tmp_path, repo
         "--num-envs", "2", "--total-timesteps", "4000", "--checkpoint-every", "500",
         "--eval-episodes", "0", "--run-dir", str(tmp_path), "--torch-threads", "1",
     ]
-    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
-    try:
-        deadline = time.monotonic() + 60
-        while not list(tmp_path.glob("*/checkpoint.pt")):
-            assert proc.poll() is None, proc.stdout.read().decode()
-            assert time.monotonic() < deadline, "no checkpoint within 60 s"
-            time.sleep(0.01)
-        proc.send_signal(signal.SIGKILL)
-        proc.wait(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        proc.stdout.close()
-    assert proc.returncode == -signal.SIGKILL, "the run finished before it could be killed"
-    (checkpoint_path,) = tmp_path.glob("*/checkpoint.pt")
+    checkpoint_path = kill_after_first_checkpoint(command, tmp_path)
     killed_at = torch.load(checkpoint_path, weights_only=True)["global_step"]
     assert killed_at % 500 == 0 and 500 <= killed_at < 4000
     option_critic.main(option_critic.Args(resume=str(checkpoint_path.parent)))

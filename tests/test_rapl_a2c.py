@@ -8,15 +8,13 @@ budgets (2 envs, a few hundred primitive steps); only the kill test starts a sub
 from __future__ import annotations
 
 import json
-import signal
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from resume_checks import kill_after_first_checkpoint
 from script_loader import load_script
 
 import routine_gym  # noqa: F401  (registers MiniQbert, CoinRun and the ALE envs)
@@ -282,22 +280,7 @@ def test_killed_run_resumes_from_its_last_checkpoint_and_finishes(rapl_a2c, tmp_
         "--mode", "a2c", "--num-envs", "2", "--total-timesteps", "3000",
         "--checkpoint-every", "500", "--eval-episodes", "0", "--run-dir", str(tmp_path),
     ]
-    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
-    try:
-        deadline = time.monotonic() + 60
-        while not list(tmp_path.glob("*/checkpoint.pt")):
-            assert proc.poll() is None, proc.stdout.read().decode()
-            assert time.monotonic() < deadline, "no checkpoint within 60 s"
-            time.sleep(0.01)
-        proc.send_signal(signal.SIGKILL)  # a crash: no clean-up, no final checkpoint
-        proc.wait(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        proc.stdout.close()
-    assert proc.returncode == -signal.SIGKILL, "the run finished before it could be killed"
-    (checkpoint_path,) = tmp_path.glob("*/checkpoint.pt")
+    checkpoint_path = kill_after_first_checkpoint(command, tmp_path)
     saved = torch.load(checkpoint_path, weights_only=True)
     killed_at = saved["global_step"]
     assert killed_at % 500 == 0 and 500 <= killed_at < 3000

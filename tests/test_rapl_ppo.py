@@ -9,15 +9,13 @@ from __future__ import annotations
 
 import json
 import math
-import signal
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from resume_checks import assert_same, kill_after_first_checkpoint
 from script_loader import load_script
 
 import routine_gym  # noqa: F401  (registers MiniQbert, CoinRun, MinAtar and the ALE envs)
@@ -414,22 +412,7 @@ def test_a_killed_run_resumes_from_the_unbroken_runs_state_and_finishes_like_it(
                "--run-dir", str(tmp_path / "killed")]
     for name, value in flags.items():
         command += [f"--{name.replace('_', '-')}", str(value)]
-    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
-    try:
-        deadline = time.monotonic() + 60
-        while not list((tmp_path / "killed").glob("*/checkpoint.pt")):
-            assert proc.poll() is None, proc.stdout.read().decode()
-            assert time.monotonic() < deadline, "no checkpoint within 60 s"
-            time.sleep(0.005)
-        proc.send_signal(signal.SIGKILL)
-        proc.wait(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        proc.stdout.close()
-    assert proc.returncode == -signal.SIGKILL, "the run finished before it could be killed"
-    (checkpoint_path,) = (tmp_path / "killed").glob("*/checkpoint.pt")
+    checkpoint_path = kill_after_first_checkpoint(command, tmp_path / "killed", poll=0.005)
     killed = torch.load(checkpoint_path, weights_only=True)
     at = killed["decisions"]
     assert at % 128 == 0 and 128 <= at < 1280
@@ -464,18 +447,3 @@ def adam_steps(checkpoint: dict) -> int:
     return int(next(iter(checkpoint["optimizer"]["state"].values()))["step"])
 
 
-def assert_same(a, b) -> None:
-    """Nested dicts and lists of tensors and numbers are exactly equal."""
-    assert type(a) is type(b)
-    if isinstance(a, torch.Tensor):
-        assert torch.equal(a, b)
-    elif isinstance(a, dict):
-        assert a.keys() == b.keys()
-        for key in a:
-            assert_same(a[key], b[key])
-    elif isinstance(a, list | tuple):
-        assert len(a) == len(b)
-        for x, y in zip(a, b, strict=True):
-            assert_same(x, y)
-    else:
-        assert a == b
