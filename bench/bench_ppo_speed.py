@@ -5,9 +5,11 @@ primitive agent steps per second as `rapl_a2c.py`, measured in the same run. Bot
 compared: plain (`--mode ppo` against `--mode a2c`) and with routines (`--mode rapl` of each).
 Each script runs with its own defaults for the env (`rapl_a2c.py`: 16 envs × 5 steps, one
 RMSprop step per rollout; `rapl_ppo.py`'s MinAtar defaults: 64 envs × 128 steps, 4 epochs of 8
-minibatches of Adam) and `--torch-threads 1 --eval-episodes 0`, each configuration in its own
-subprocess, the two scripts of a pair one after the other, the pair's order alternating from
-one repeat to the next so that a drift in the machine's load favours neither.
+minibatches of Adam) and `--eval-episodes 0`, at each `--torch-threads` setting (default: 0,
+torch's own choice, which is both scripts' default, then 1, which the experiments' sweeps use),
+each configuration in its own subprocess, the two scripts of a pair one after the other, the
+pair's order alternating from one repeat to the next so that a drift in the machine's load
+favours neither.
 
 The time is taken in this process from the arrival of the script's progress line at the first
 step ≥ `--warmup` to that of its last line (`--log-every 1000`: rapl_ppo prints one per rollout,
@@ -23,6 +25,11 @@ MinAtar's small network; one epoch shows what the rest of the script costs.
 Usage:
     python bench/bench_ppo_speed.py                                   # 2 repeats, ~5 minutes
     python bench/bench_ppo_speed.py --warmup 20000 --steps 100000 --repeats 1 --explain
+    python bench/bench_ppo_speed.py --torch-threads 1                 # one setting only
+
+At the default threads PPO's large minibatches (1,024 states) use the second core, and A2C's
+(80 states) hardly do; at one thread each, PPO's four passes over every sample cost more than
+A2C's one.
 """
 
 from __future__ import annotations
@@ -57,6 +64,7 @@ class Result:
 
     config: str
     repeat: int
+    threads: int
     command: str
     load_before: str
     start_step: int = 0
@@ -74,16 +82,17 @@ class Result:
         return (self.end_step - self.start_step) / self.cpu_seconds
 
 
-def run_config(name: str, args, run_dir: Path, repeat: int) -> Result:
-    """Run one script in a subprocess and time its progress lines as they arrive."""
+def run_config(name: str, args, run_dir: Path, repeat: int, threads: int) -> Result:
+    """Run one script in a subprocess at `--torch-threads threads` and time its progress
+    lines as they arrive."""
     script, mode, extra = CONFIGS[name]
     cmd = [sys.executable, str(SCRIPTS[script]), "--env-id", args.env_id, "--mode", mode,
            "--total-timesteps", str(args.warmup + args.steps), "--eval-episodes", "0",
-           "--log-every", "1000", "--torch-threads", "1", "--run-dir", str(run_dir),
+           "--log-every", "1000", "--torch-threads", str(threads), "--run-dir", str(run_dir),
            "--seed", "1", *extra]
     if mode == "rapl":
         cmd += ["--demo", args.demo]
-    result = Result(name, repeat, shlex.join(cmd), load_average())
+    result = Result(name, repeat, threads, shlex.join(cmd), load_average())
     stamps, _, returncode, stderr = stream_progress(cmd)
     stderr = stderr.strip()
     if returncode != 0:
@@ -107,55 +116,62 @@ def _num(value: float | None, spec: str) -> str:
     return "–" if value is None else format(value, spec)
 
 
+def summary_line(results: list[Result], args, threads: int, a2c: str, ppo: str) -> str:
+    """One pair's ratios over the repeats at one thread setting, and the verdict."""
+    ratios, cpu_ratios = [], []
+    mine = [r for r in results if r.threads == threads and not r.error]
+    for repeat in range(args.repeats):
+        pair = {r.config: r for r in mine if r.repeat == repeat}
+        if a2c in pair and ppo in pair:
+            ratios.append(pair[ppo].sps / pair[a2c].sps)
+            if pair[ppo].cpu_sps and pair[a2c].cpu_sps:
+                cpu_ratios.append(pair[ppo].cpu_sps / pair[a2c].cpu_sps)
+    label = f"{ppo} / {a2c}, --torch-threads {threads}"
+    if not ratios:
+        return f"- {label}: no complete pair."
+    best = {name: max(r.sps for r in mine if r.config == name) for name in (a2c, ppo)}
+    verdict = "yes" if statistics.median(ratios) >= 1.0 else "no"
+    if (a2c, ppo) in EXPLAIN_PAIRS:
+        verdict += " (one epoch: an explanation, not the acceptance)"
+    return (f"- {label}: per repeat {', '.join(f'{x:.2f}×' for x in ratios)} in wall-clock "
+            f"SPS (median {statistics.median(ratios):.2f}×); per CPU second "
+            f"{', '.join(f'{x:.2f}×' for x in cpu_ratios) or '–'}. Best repeats: "
+            f"{best[ppo]:,.0f} vs {best[a2c]:,.0f} SPS. rapl_ppo at least as fast: {verdict}.")
+
+
 def render(results: list[Result], args, command: str, before: str, after: str) -> str:
     """The markdown report: every measurement, then the pairs' ratios."""
     lines = [
         "# rapl_ppo.py vs rapl_a2c.py: agent steps per second on " + args.env_id, "",
         "Produced by `bench/bench_ppo_speed.py` (its docstring says how it measures). Each "
-        "script with its own defaults for the env and `--torch-threads 1`; SPS = primitive "
+        "script with its own defaults for the env, at each `--torch-threads` setting (0: "
+        "torch's default, both scripts' default; 1: the sweeps'); SPS = primitive "
         "agent steps between the progress line at the first step ≥ the warm-up and the last "
         "one, over the wall time between them; `CPU s` the process's CPU time over the same "
         "steps. **The machine is shared**: other jobs ran during the measurement (the load "
         "averages and the busiest other processes are below), so the figures are lower than on "
         "an idle machine and vary between repeats; compare the two scripts of a pair, which ran "
-        "back to back.", "",
-        "| config | script | mode | repeat | load (1/5/15) before | steps timed | wall s | SPS "
-        "| CPU s | steps per CPU s | routine use |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "back to back. With the load before each run below 0.5 the machine was idle.", "",
+        "| config | script | mode | threads | repeat | load (1/5/15) before | steps timed | wall s "
+        "| SPS | CPU s | steps per CPU s | routine use |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
         script, mode, _ = CONFIGS[r.config]
         if r.error:
-            lines.append(f"| {r.config} | rapl_{script}.py | {mode} | {r.repeat} | "
+            lines.append(f"| {r.config} | rapl_{script}.py | {mode} | {r.threads} | {r.repeat} | "
                          f"{r.load_before} | error: {r.error} | | | | | |")
             continue
         lines.append(
-            f"| {r.config} | rapl_{script}.py | {mode} | {r.repeat} | {r.load_before} | "
+            f"| {r.config} | rapl_{script}.py | {mode} | {r.threads} | {r.repeat} | "
+            f"{r.load_before} | "
             f"{r.end_step - r.start_step:,} | {r.seconds:.1f} | **{r.sps:,.0f}** | "
             f"{_num(r.cpu_seconds, '.1f')} | {_num(r.cpu_sps, ',.0f')} | "
             f"{_num(r.routine_use, '.1f')} % |")
     lines += ["", "## Summary", ""]
-    for a2c, ppo in (*PAIRS, *(p for p in EXPLAIN_PAIRS if args.explain)):
-        ratios, cpu_ratios = [], []
-        for repeat in range(args.repeats):
-            pair = {r.config: r for r in results if r.repeat == repeat and not r.error}
-            if a2c in pair and ppo in pair:
-                ratios.append(pair[ppo].sps / pair[a2c].sps)
-                if pair[ppo].cpu_sps and pair[a2c].cpu_sps:
-                    cpu_ratios.append(pair[ppo].cpu_sps / pair[a2c].cpu_sps)
-        if not ratios:
-            lines.append(f"- {ppo} / {a2c}: no complete pair.")
-            continue
-        best = {name: max((r.sps for r in results if r.config == name and not r.error),
-                          default=None) for name in (a2c, ppo)}
-        verdict = "yes" if statistics.median(ratios) >= 1.0 else "no"
-        if (a2c, ppo) in EXPLAIN_PAIRS:
-            verdict += " (one epoch: an explanation, not the acceptance)"
-        lines.append(
-            f"- {ppo} / {a2c}: per repeat {', '.join(f'{x:.2f}×' for x in ratios)} in wall-clock "
-            f"SPS (median {statistics.median(ratios):.2f}×); per CPU second "
-            f"{', '.join(f'{x:.2f}×' for x in cpu_ratios) or '–'}. Best repeats: "
-            f"{best[ppo]:,.0f} vs {best[a2c]:,.0f} SPS. rapl_ppo at least as fast: {verdict}.")
+    for threads in args.torch_threads:
+        for a2c, ppo in (*PAIRS, *(p for p in EXPLAIN_PAIRS if args.explain)):
+            lines.append(summary_line(results, args, threads, a2c, ppo))
     lines += [
         "", "## Setup", "",
         f"- Command: `{command}`",
@@ -184,6 +200,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--explain", action="store_true",
                         help="also run the one-epoch pairs (rapl_ppo --update-epochs 1)")
+    parser.add_argument("--torch-threads", type=int, nargs="+", default=[0, 1],
+                        help="the scripts' --torch-threads settings, each measured (0: torch's "
+                             "default)")
     parser.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "ppo_speed.md")
     args = parser.parse_args(argv)
     command = "python bench/bench_ppo_speed.py " + shlex.join(argv if argv is not None
@@ -191,13 +210,15 @@ def main(argv: list[str] | None = None) -> None:
     before = load_average()
     results = []
     with tempfile.TemporaryDirectory(prefix="bench_ppo_speed_") as tmp:
-        for repeat in range(args.repeats):
-            for pair in (*PAIRS, *(EXPLAIN_PAIRS if args.explain else ())):
-                for name in pair if repeat % 2 == 0 else reversed(pair):
-                    result = run_config(name, args, Path(tmp) / "runs", repeat)
-                    results.append(result)
-                    print(f"{name} (repeat {repeat}): "
-                          + (result.error or f"{result.sps:,.0f} SPS"), flush=True)
+        runs = [(repeat, threads, pair) for repeat in range(args.repeats)
+                for threads in args.torch_threads
+                for pair in (*PAIRS, *(EXPLAIN_PAIRS if args.explain else ()))]
+        for repeat, threads, pair in runs:
+            for name in pair if repeat % 2 == 0 else reversed(pair):
+                result = run_config(name, args, Path(tmp) / "runs", repeat, threads)
+                results.append(result)
+                print(f"{name} t{threads} (repeat {repeat}): "
+                      + (result.error or f"{result.sps:,.0f} SPS"), flush=True)
     report = render(results, args, command.strip(), before, load_average())
     args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp_out = args.out.with_suffix(".tmp")

@@ -117,7 +117,7 @@ def test_the_long_budgets_runs_are_exactly_those_of_the_sweep_in_progress():
     assert hashlib.sha256(json.dumps(rows).encode()).hexdigest() == LONG_DIGEST
 
 
-def test_the_committed_cpu_snapshot_keeps_its_runs_and_a_sweep_from_it_runs_ppo_alone(
+def test_the_committed_cpu_snapshot_keeps_its_runs_and_a_sweep_without_ppo_runs_ppo_alone(
         tmp_path, monkeypatch):
     for name in EXPERIMENTS:
         built = {e.run.key: e for e in build(name, "cpu")}
@@ -126,9 +126,15 @@ def test_the_committed_cpu_snapshot_keeps_its_runs_and_a_sweep_from_it_runs_ppo_
             config = json.loads((SNAPSHOT / "runs" / row["key"] / "config.json").read_text())
             assert config == json.loads(json.dumps(built[row["key"]].run.config())), (
                 name, row["key"])  # as written to config.json (tuples are lists there)
-    # A sweep of rl continued from a copy of the snapshot's rl runs starts the PPO runs only.
+    # The snapshot holds every rl run, PPO's included (they ran on 2026-12-04).
+    rl_keys = [r["key"] for r in json.loads((SNAPSHOT / "rl.json").read_text())["runs"]]
+    assert len(rl_keys) == 90
+    assert all((SNAPSHOT / "runs" / key / "result.json").is_file() for key in rl_keys)
+    # A sweep of rl continued from a copy of the snapshot's runs from before PPO (the folder
+    # of a user who swept before the PPO rows came) starts the PPO runs only.
     shutil.copy(SNAPSHOT / "rl.json", tmp_path / "rl.json")
-    old = [r["key"] for r in json.loads((SNAPSHOT / "rl.json").read_text())["runs"]]
+    ppo_keys = {e.run.key for e in build("rl", "cpu") if e.method in PPO}
+    old = [key for key in rl_keys if key not in ppo_keys]
     for key in old:
         shutil.copytree(SNAPSHOT / "runs" / key, tmp_path / "runs" / key)
     submitted: list[dict] = []
