@@ -526,8 +526,10 @@ def cmd_experiment_report(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from routine_gym.envs import quiet_ale
     from routine_gym.plumbing.errors import debug_requested, one_line
 
+    quiet_ale()
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = debug_requested(argv)
     parser = build_parser()

@@ -158,3 +158,22 @@ def test_each_script_trains_checkpoints_and_evaluates(script, family, flags, tmp
     assert summary["env_id"] == env_id and len(summary["returns"]) == 1
     assert (run / "checkpoint.pt").is_file()
     assert not [p for p in run.rglob("*.tmp")]
+
+
+def test_ale_greets_no_one_in_the_scripts_and_the_cli_but_a_library_user_keeps_its_logging(
+        tmp_path):
+    banner = ("A.L.E: Arcade Learning Environment", "[Powered by Stella]")
+    replayed = user("routine-gym", "replay", DEMOS / "ALE-Qbert-v5.npz", cwd=tmp_path)
+    assert ok(replayed).strip().endswith("matches the recording")
+    assert not any(line in replayed.stderr for line in banner), replayed.stderr
+    trained = user("python", REPO / "algos" / "rapl_a2c.py", "--env-id", "ALE/Qbert-v5",
+                   "--mode", "a2c", "--num-envs", "2", "--total-timesteps", "64",
+                   "--eval-episodes", "1", "--run-dir", "runs",
+                   cwd=tmp_path)
+    assert "eval over 1 episodes" in ok(trained)
+    assert not any(line in trained.stderr for line in banner), trained.stderr
+    # Importing routine-gym changes nothing of ALE's own logging.
+    made = user("python", "-c", "import gymnasium as gym, routine_gym; "
+                "routine_gym.register_envs(); gym.make('ALE/Qbert-v5').reset(seed=0)",
+                cwd=tmp_path)
+    assert all(line in ok(made) + made.stderr for line in banner), made.stderr

@@ -17,6 +17,7 @@ what differs between families; `factory.py` builds envs from it.
 from __future__ import annotations
 
 import importlib
+import sys
 
 import gymnasium as gym
 from gymnasium.envs.registration import EnvSpec
@@ -149,6 +150,20 @@ def register_own_envs() -> None:
 
 
 _ale_registered = False
+_ale_quiet = False
+
+
+def quiet_ale() -> None:
+    """Keep ALE's banner (`A.L.E: Arcade Learning Environment ...`, `[Powered by Stella]`) off
+    stderr, from now on or from when `ale_py` is loaded: ALE's warnings and errors still print.
+    The scripts and `routine-gym` call it, so that a run's log and a mistake's one-line error
+    are not preceded by the emulator's greeting; a library user's ALE logging is left as it is.
+    """
+    global _ale_quiet
+    _ale_quiet = True
+    ale_py = sys.modules.get("ale_py")
+    if ale_py is not None:
+        ale_py.ALEInterface.setLoggerMode(ale_py.LoggerMode.Warning)
 
 
 def register_envs() -> None:
@@ -169,4 +184,6 @@ def register_envs() -> None:
     except ImportError:  # ale-py is a dependency; a broken install should not hide the rest
         return
     gym.register_envs(ale_py)
+    if _ale_quiet:
+        ale_py.ALEInterface.setLoggerMode(ale_py.LoggerMode.Warning)
     _ale_registered = True

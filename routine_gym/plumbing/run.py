@@ -58,8 +58,10 @@ def run_script(main: Callable[[Any], Any], args_type: type,
     """A script's entry point: parse its flags and run `main`, reporting a user's mistakes
     (`routine_gym.plumbing.errors`) as one line on stderr with exit code 2; `--debug` (or
     `ROUTINE_GYM_DEBUG=1`) shows their traceback instead. A bug keeps its traceback."""
+    from routine_gym.envs import quiet_ale
     from routine_gym.plumbing.errors import debug_requested, expected_errors, one_line
 
+    quiet_ale()
     argv = sys.argv[1:]
     debug = debug_requested(argv)
     script = os.path.basename(sys.argv[0])
