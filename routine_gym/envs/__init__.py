@@ -163,7 +163,12 @@ def quiet_ale() -> None:
     _ale_quiet = True
     ale_py = sys.modules.get("ale_py")
     if ale_py is not None:
-        ale_py.ALEInterface.setLoggerMode(ale_py.LoggerMode.Warning)
+        _warnings_only(ale_py)
+
+
+def _warnings_only(ale_py) -> None:
+    """ALE's log level for the scripts and `routine-gym`: warnings and errors, no banner."""
+    ale_py.ALEInterface.setLoggerMode(ale_py.LoggerMode.Warning)
 
 
 def register_envs() -> None:
@@ -185,5 +190,5 @@ def register_envs() -> None:
         return
     gym.register_envs(ale_py)
     if _ale_quiet:
-        ale_py.ALEInterface.setLoggerMode(ale_py.LoggerMode.Warning)
+        _warnings_only(ale_py)
     _ale_registered = True
