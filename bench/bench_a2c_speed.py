@@ -23,7 +23,8 @@ shared between them:
   `vf_coef`, entropy × `ent_coef`) against random returns, the loss values read with
   `.item()`, `zero_grad`, `backward`, `clip_grad_norm_`,
   and an RMSprop(`foreach=True`) step, with the learning rate annealed per rollout as the
-  script does. The inputs are random (0/1 floats for float spaces such as MinAtar's, uint8
+  script does, and freed memory kept for reuse as `start_run` keeps it for the script
+  (`routine_gym.plumbing.memory`). The inputs are random (0/1 floats for float spaces such as MinAtar's, uint8
   for Atari frames): a few batches generated before timing and reused cyclically. No env is
   stepped, so no script can be faster with this network and these threads.
 - ``a2c-t1`` … ``rapl-async-t2``: `python algos/rapl_a2c.py --mode {a2c,rapl} --num-envs 16
@@ -500,6 +501,7 @@ def net_worker(args) -> None:
     import routine_gym
     from routine_gym.envs import profile_for
     from routine_gym.envs.factory import make_vector_env
+    from routine_gym.plumbing.memory import keep_freed_memory
     from routine_gym.returns import critic_loss
 
     warnings.filterwarnings("ignore", category=DeprecationWarning)
@@ -511,6 +513,7 @@ def net_worker(args) -> None:
     torch.distributions.Distribution.set_default_validate_args(False)
     if args.worker_threads > 0:
         torch.set_num_threads(args.worker_threads)
+    keep_freed_memory()
 
     probe = make_vector_env(args.env_id, 1)
     space, num_actions = probe.single_observation_space, int(probe.single_action_space.n)

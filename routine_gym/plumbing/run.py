@@ -5,7 +5,8 @@ each script, written once.
 saved `Args`, the checkpoint, the run's own folder), makes the run folder
 `{run_dir}/{env}__{exp_name}[-{mode}]__{seed}__{time}`, the TensorBoard writer with the
 hyper-parameter table, seeds Python, NumPy and torch (and a `numpy.random.Generator` for the
-script's own draws), sets torch's threads and picks the device. The `Run` it returns holds the
+script's own draws), sets torch's threads, keeps freed memory for reuse
+(`routine_gym.plumbing.memory`) and picks the device. The `Run` it returns holds the
 run's lifecycle, so a script's `main` holds only its algorithm: `run.resume(...)` names what a
 checkpoint holds and puts it back on `--resume` (returning the step counters),
 `run.checkpoint_if_due(...)` saves one every `--checkpoint-every` steps (with every RNG state
@@ -39,6 +40,7 @@ from routine_gym.plumbing.arguments import ExtraChecks, check_args, given_flags,
 from routine_gym.plumbing.atomic import atomic_write_bytes, check_folder, check_writable
 from routine_gym.plumbing.checkpoint import CHECKPOINT_NAME, resume_settings, write_checkpoint
 from routine_gym.plumbing.errors import UsageError
+from routine_gym.plumbing.memory import keep_freed_memory
 from routine_gym.plumbing.rng import rng_state, set_rng_state
 
 __all__ = [
@@ -430,6 +432,7 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
     torch.distributions.Distribution.set_default_validate_args(False)
     if args.torch_threads > 0:
         torch.set_num_threads(args.torch_threads)
+    keep_freed_memory()  # a minibatch's blocks are reused, not page-faulted in again
     device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
     run = Run(args=args, name=name, path=path, writer=writer, device=device, rng=rng,
               checkpoint=checkpoint, budget=budget, saved_budget=saved_budget,
