@@ -24,9 +24,10 @@ shared between them:
   `.item()`, `zero_grad`, `backward`, `clip_grad_norm_`,
   and an RMSprop(`foreach=True`) step, with the learning rate annealed per rollout as the
   script does, and freed memory kept for reuse as `start_run` keeps it for the script
-  (`routine_gym.plumbing.memory`). The inputs are random (0/1 floats for float spaces such as MinAtar's, uint8
-  for Atari frames): a few batches generated before timing and reused cyclically. No env is
-  stepped, so no script can be faster with this network and these threads.
+  (`routine_gym.plumbing.memory`). The inputs are random (0/1 floats for float spaces such as
+  MinAtar's, uint8 for Atari frames): a few batches generated before timing and reused
+  cyclically. No env is stepped, so no script can be faster with this network and these
+  threads.
 - ``a2c-t1`` … ``rapl-async-t2``: `python algos/rapl_a2c.py --mode {a2c,rapl} --num-envs 16
   --eval-episodes 0 --torch-threads {1,2} [--async-envs]` (the script's default is
   `--torch-threads 0`, torch's own count: 2 on a 2-core machine). RAPL mines its routines
@@ -161,7 +162,7 @@ def machine_info() -> dict[str, str]:
                  f"interop {torch.get_num_interop_threads()})",
         "gymnasium": gym.__version__,
         "ale-py": ale_py.__version__,
-        "thread env vars": thread_env_vars(),
+        "thread and memory env vars": thread_env_vars(),
         "rapl_a2c.py sha256": hashlib.sha256(SCRIPT.read_bytes()).hexdigest()[:16],
         "git HEAD": git_head(REPO, [str(SCRIPT)]),
     }

@@ -377,7 +377,7 @@ def machine_info() -> dict[str, str]:
         "memory": memory(),
         "torch": f"{torch.__version__} (default threads {torch.get_num_threads()}, "
                  f"interop {torch.get_num_interop_threads()})",
-        "thread env vars": thread_env_vars(),
+        "thread and memory env vars": thread_env_vars(),
         "compile_a2c.py sha256": hashlib.sha256(SCRIPT.read_bytes()).hexdigest()[:16],
         "git HEAD": git_head(REPO, [str(SCRIPT), "routine_gym/baselines/compile",
                                     "routine_gym/imitation", "routine_gym/networks.py"]),

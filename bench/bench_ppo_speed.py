@@ -185,7 +185,7 @@ def render(results: list[Result], args, command: str, before: str, after: str) -
 
     info = {**base_machine_info(), "memory": memory(),
             "torch": f"{torch.__version__} (default threads {torch.get_num_threads()})",
-            "thread env vars": thread_env_vars(),
+            "thread and memory env vars": thread_env_vars(),
             "git HEAD": git_head(REPO, [str(p) for p in SCRIPTS.values()])}
     lines += [f"- {key}: {value}" for key, value in info.items()]
     return "\n".join(lines) + "\n"

@@ -54,10 +54,17 @@ def memory() -> str:
     return "unknown"
 
 
+#: The environment variables that change a benchmark's speed: threads, and malloc's handling of
+#: freed memory (`routine_gym.plumbing.memory`).
+TUNING_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "ROUTINE_GYM_KEEP_MEMORY",
+               "MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
+
+
 def thread_env_vars() -> str:
-    """The thread-count environment variables set for this process, or `none set`."""
-    return ", ".join(f"{k}={os.environ[k]}" for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS")
-                     if k in os.environ) or "none set"
+    """The thread-count and memory environment variables set for this process (`TUNING_VARS`),
+    or `none set`."""
+    return ", ".join(f"{k}={os.environ[k]}" for k in TUNING_VARS if k in os.environ) \
+        or "none set"
 
 
 def git_head(repo: Path, paths: list[str]) -> str:
