@@ -230,3 +230,21 @@ def test_the_docstring_examples_hold():
 
     for module in (provenance, specs):
         assert doctest.testmod(module).failed == 0, module.__name__
+
+
+def test_the_committed_long_snapshot_has_every_run_finished_with_its_provenance():
+    snapshot = REPO / "bench" / "results" / "experiments" / "long"
+    built = {e.run.key: e for e in registry.build("rl", "long")}
+    rows = json.loads((snapshot / "rl.json").read_text())["runs"]
+    assert sorted(row["key"] for row in rows) == sorted(built) and len(rows) == 45
+    for row in rows:
+        assert row == built[row["key"]].manifest(), row["key"]
+        result = json.loads((snapshot / "runs" / row["key"] / "result.json").read_text())
+        assert result["finished"], row["key"]
+        assert result["curve"]["total_steps"] == 10_000_000, row["key"]
+        prov = result["provenance"]
+        assert prov["wall_seconds"] > 0 and prov["machine"]["cores"] >= 1, row["key"]
+        assert sum(a["seconds"] for a in prov["attempts"]) == pytest.approx(
+            prov["wall_seconds"], abs=1.0), row["key"]
+    assert json.loads((snapshot / "provenance.json").read_text())["experiments"]["rl"] == {
+        "runs": 45, "finished": 45}
