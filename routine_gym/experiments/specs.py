@@ -14,8 +14,9 @@ Budgets:
 - `paper`: the paper's settings: 10^7 agent steps, 5 seeds, the authors' 30 Atari games, each
   game's demo from an A2C expert trained first (the shipped demo where there is one).
 - `long`: the rl experiment alone at the paper's 10^7 agent steps on MinAtar's five games,
-  3 seeds, with RAPL-A2C as the authors' code has it beside A2C and RAPL-A2C (about a day on a
-  2-core CPU, so a checkpoint every tenth of a run); the other experiments have no runs there.
+  3 seeds, with RAPL-A2C as the authors' code has it beside A2C and RAPL-A2C (14.5 run-hours
+  as measured on a 2-core CPU, so a checkpoint every tenth of a run); the other experiments
+  have no runs there.
 
 The rl experiment also runs PPO, RAPL-PPO and MacroAction-PPO (`algos/rapl_ppo.py`, issue 29)
 where a budget opts in (`rl_ppo`: smoke and cpu): added beside the A2C runs, whose keys and
@@ -181,7 +182,7 @@ BUDGETS: dict[str, Budget] = {
     "long": Budget(
         name="long",
         description="the paper's 10^7 agent steps on MinAtar's five games, rl only (with "
-                    "RAPL-A2C as the authors' code), 3 seeds: about a day on a 2-core CPU",
+                    "RAPL-A2C as the authors' code), 3 seeds: 15 run-hours, 8 h on a 2-core CPU",
         seeds=3, games=MINATAR, rl_games=MINATAR, imitation_games=MINATAR,
         steps=10_000_000, coinrun_steps=500_000, sqil_steps=100_000, gail_steps=500_000,
         bc_steps=10_000, expert_steps=5_000_000, shipped_expert_steps=5_000_000,
