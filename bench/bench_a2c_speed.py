@@ -86,7 +86,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import NamedTuple
 
-from common import base_machine_info, git_head, load_average, memory, thread_env_vars
+from common import base_machine_info, git_head, load_average, memory, tuning_env_vars
 
 REPO = Path(__file__).resolve().parents[1]
 SCRIPT = REPO / "algos" / "rapl_a2c.py"
@@ -162,7 +162,7 @@ def machine_info() -> dict[str, str]:
                  f"interop {torch.get_num_interop_threads()})",
         "gymnasium": gym.__version__,
         "ale-py": ale_py.__version__,
-        "thread and memory env vars": thread_env_vars(),
+        "thread and memory env vars": tuning_env_vars(),
         "rapl_a2c.py sha256": hashlib.sha256(SCRIPT.read_bytes()).hexdigest()[:16],
         "git HEAD": git_head(REPO, [str(SCRIPT)]),
     }

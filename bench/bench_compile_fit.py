@@ -56,7 +56,7 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from types import ModuleType
 
-from common import base_machine_info, git_head, load_average, memory, thread_env_vars
+from common import base_machine_info, git_head, load_average, memory, tuning_env_vars
 
 REPO = Path(__file__).resolve().parents[1]
 SCRIPT = REPO / "algos" / "compile_a2c.py"
@@ -377,7 +377,7 @@ def machine_info() -> dict[str, str]:
         "memory": memory(),
         "torch": f"{torch.__version__} (default threads {torch.get_num_threads()}, "
                  f"interop {torch.get_num_interop_threads()})",
-        "thread and memory env vars": thread_env_vars(),
+        "thread and memory env vars": tuning_env_vars(),
         "compile_a2c.py sha256": hashlib.sha256(SCRIPT.read_bytes()).hexdigest()[:16],
         "git HEAD": git_head(REPO, [str(SCRIPT), "routine_gym/baselines/compile",
                                     "routine_gym/imitation", "routine_gym/networks.py"]),

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bench_a2c_speed import other_processes, stream_progress
-from common import base_machine_info, git_head, load_average, memory, thread_env_vars
+from common import base_machine_info, git_head, load_average, memory, tuning_env_vars
 
 REPO = Path(__file__).resolve().parents[1]
 SCRIPTS = {"a2c": REPO / "algos" / "rapl_a2c.py", "ppo": REPO / "algos" / "rapl_ppo.py"}
@@ -185,7 +185,7 @@ def render(results: list[Result], args, command: str, before: str, after: str) -
 
     info = {**base_machine_info(), "memory": memory(),
             "torch": f"{torch.__version__} (default threads {torch.get_num_threads()})",
-            "thread and memory env vars": thread_env_vars(),
+            "thread and memory env vars": tuning_env_vars(),
             "git HEAD": git_head(REPO, [str(p) for p in SCRIPTS.values()])}
     lines += [f"- {key}: {value}" for key, value in info.items()]
     return "\n".join(lines) + "\n"

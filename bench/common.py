@@ -60,7 +60,7 @@ TUNING_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "ROUTINE_GYM_KEEP_MEMORY",
                "MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
 
 
-def thread_env_vars() -> str:
+def tuning_env_vars() -> str:
     """The thread-count and memory environment variables set for this process (`TUNING_VARS`),
     or `none set`."""
     return ", ".join(f"{k}={os.environ[k]}" for k in TUNING_VARS if k in os.environ) \

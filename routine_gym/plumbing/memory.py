@@ -3,11 +3,12 @@
 glibc's `malloc` serves a large block (a minibatch's activations: MinAtar PPO's 1,024 states ×
 1,024 features are 4 MiB) by `mmap` and returns it to the OS on `free`, and trims the top of
 its heap once more than a few hundred KiB there are free. The next minibatch asks for the same
-blocks again, and the kernel zero-fills them page by page: on MinAtar's small network this
-page faulting took about a third of a PPO update's time (`bench/bench_ppo_speed.py`; a 1,500-state
-forward and backward pass: 26 ms → 19.5 ms on one thread, 14–20 ms → 12.8 ms on two). Raising
-both thresholds keeps the blocks in the heap for reuse; the numbers computed are the same, the
-process holds on to its peak memory.
+blocks again, and the kernel zero-fills them page by page. On MinAtar's small network a
+1,500-state forward and backward pass took 26 ms by default and 19.5 ms with the blocks kept
+(one thread; 14–20 ms and 12.8 ms on two), and whole runs of `bench/bench_ppo_speed.py` gained
+17 % for PPO and 6 % for RAPL-PPO (A2C's small batches: nothing). Raising both thresholds keeps
+the blocks in the heap for reuse; the numbers computed are the same, the process holds on to its
+peak memory.
 
 `keep_freed_memory()` does that where the C library is glibc (Linux) and nothing elsewhere; the
 variables `MALLOC_MMAP_THRESHOLD_` and `MALLOC_TRIM_THRESHOLD_`, when set, win (glibc's own
