@@ -4,10 +4,11 @@
 # time; 14.5 run-hours as run on a 2-core CPU in 2026-12 (about 8 h with 2 jobs; the estimate from
 # the cpu budget's run times ×10 was 30). Rerun the same command to continue after a kill, a reboot
 # or on a new machine: finished runs are skipped and the others resume from their last checkpoint
-# (one every 10^6 steps), losing at most that. A SWEEP that does not exist yet starts as a copy of the committed snapshot
-# (bench/results/experiments/long) where there is one. It runs under `nice` (NICE, 10 unless set)
-# so the machine stays usable, each run on one thread (the sweep passes --torch-threads 1; the
-# thread variables below keep NumPy's BLAS to one too). Then report and snapshot it:
+# (one every 10^6 steps), losing at most that. A SWEEP that does not exist yet starts as a copy of
+# the committed snapshot (bench/results/experiments/long) where there is one. It runs under `nice`
+# (NICE, 10 unless set) so the machine stays usable, each run on one thread (the sweep passes
+# --torch-threads 1; the thread variables below keep NumPy's BLAS to one too). Then report and
+# snapshot it:
 #
 #     nohup bench/sweep_long.sh /work/sweeps/long 2 > /work/sweeps/long.log 2>&1 &
 #     routine-gym experiment report /work/sweeps/long          # any time, also while it runs
