@@ -283,6 +283,7 @@ def worker(args) -> None:
     import torch
 
     import routine_gym
+    from routine_gym.plumbing.memory import keep_freed_memory
 
     warnings.filterwarnings("ignore", category=DeprecationWarning)
     script = load_script()
@@ -297,6 +298,7 @@ def worker(args) -> None:
     torch.distributions.Distribution.set_default_validate_args(False)
     if sargs.torch_threads > 0:
         torch.set_num_threads(sargs.torch_threads)
+    keep_freed_memory()  # glibc keeps freed blocks for reuse (ROUTINE_GYM_KEEP_MEMORY=0: off)
     # What main does before learn_options.
     probe = script.make_env(sargs.env_id, sargs.seed, 0, training=True,
                             env_kwargs=script.train_env_kwargs(sargs))()

@@ -485,3 +485,32 @@ def test_killed_run_resumes_with_its_own_options(compile_a2c, tmp_path, repo_roo
     assert resumed_meta["codes"] == saved_meta["codes"]
     for name, tensor in saved_model.state_dict().items():
         torch.testing.assert_close(resumed_model.state_dict()[name], tensor)
+
+
+def test_a_seeded_fit_is_the_same_fit_on_two_threads():
+    # The windows share states, so each state's features get the gradients of several
+    # windows; the sum must not depend on which of the CPU's threads finishes first (indexing's
+    # backward made every seeded fit of compile_a2c.py on MinAtar a different one).
+    rng = np.random.default_rng(0)
+    decisions = 80
+    states = (rng.random((decisions + 1, 4, 10, 10)) < 0.1).astype(np.float32)
+    actions = rng.integers(0, 3, decisions)
+    # The script's windows (16 of 32 decisions: 512 rows of 128 features, enough for torch to
+    # split the sum between threads), a smaller model.
+    config = CompILEConfig(env_id="MinAtar/Breakout-v1", obs_shape=(4, 10, 10),
+                           obs_dtype="float32", num_actions=3, num_segments=3, window=32,
+                           hidden_dim=32)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        fits = [train_compile(states, actions, [decisions], config, iterations=10,
+                              batch_size=16, seed=3, log_every=5)
+                for _ in range(3)]
+    finally:
+        torch.set_num_threads(threads)
+    (first, first_log), *others = fits
+    for model, log in others:
+        assert log == first_log
+        for (name, a), b in zip(first.state_dict().items(), model.state_dict().values(),
+                                strict=True):
+            assert torch.equal(a, b), name

@@ -16,7 +16,7 @@ backward: 10 segments × 33 steps per batch made the fit take minutes on a CPU. 
 - the loop runs without recording, and `backward` walks it in reverse with the hand-derived
   gradients; the gradient of `W_hh` is one matrix product over all steps at the end.
 
-It is the same function of the same parameters as the `GRUCell` loop; `tests/test_compile.py`
+It is the same function of the same parameters as the `GRUCell` loop; `tests/test_masked_gru.py`
 checks the outputs and every gradient against that loop (float64, to 1e-10) and with
 `torch.autograd.gradcheck`.
 """

@@ -112,10 +112,15 @@ def train_compile(
         offset = rng.integers(0, starts_per_episode[pick])
         steps = offset[:, None] + np.arange(w)[None]  # [B, W] within the episode
         state_index = state_start[episode][:, None] + steps
-        # φ once per distinct state of the batch, then gathered into the windows.
+        # φ once per distinct state of the batch, then gathered into the windows with
+        # `index_select`: its backward adds the windows' gradients in a fixed order, where
+        # indexing's (`index_put_` with accumulate) adds them in whatever order the CPU's
+        # threads finish, and a seeded fit came out differently each time on two threads.
         unique, inverse = np.unique(state_index, return_inverse=True)
         features = model.features(states_t[torch.as_tensor(unique, device=device)])
-        features = features[torch.as_tensor(inverse.reshape(state_index.shape), device=device)]
+        features = features.index_select(
+            0, torch.as_tensor(inverse.reshape(-1), device=device)
+        ).view(*state_index.shape, -1)
         window_actions = actions_t[torch.as_tensor(decision_start[episode][:, None] + steps,
                                                    device=device)]
         recognition = model.recognise(features, window_actions, generator=generator)
