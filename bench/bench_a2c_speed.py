@@ -502,19 +502,14 @@ def net_worker(args) -> None:
     import routine_gym
     from routine_gym.envs import profile_for
     from routine_gym.envs.factory import make_vector_env
-    from routine_gym.plumbing.memory import keep_freed_memory
+    from routine_gym.plumbing.run import seed_and_tune
     from routine_gym.returns import critic_loss
 
     warnings.filterwarnings("ignore", category=DeprecationWarning)
     routine_gym.register_envs()
     script = load_script_module()
     defaults = script.Args()  # the script's own hyperparameters (lr, RMSprop, N, coefficients)
-    # What `start_run` sets for the script.
-    torch.manual_seed(1)
-    torch.distributions.Distribution.set_default_validate_args(False)
-    if args.worker_threads > 0:
-        torch.set_num_threads(args.worker_threads)
-    keep_freed_memory()
+    seed_and_tune(1, args.worker_threads)  # what `start_run` sets for the script
 
     probe = make_vector_env(args.env_id, 1)
     space, num_actions = probe.single_observation_space, int(probe.single_action_space.n)

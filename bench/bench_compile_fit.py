@@ -276,14 +276,12 @@ class _NullWriter:
 
 def worker(args) -> None:
     """`learn_options` of compile_a2c.py on one game's shipped demo; prints one JSON line."""
-    import random
     import warnings
 
-    import numpy as np
     import torch
 
     import routine_gym
-    from routine_gym.plumbing.memory import keep_freed_memory
+    from routine_gym.plumbing.run import seed_and_tune
 
     warnings.filterwarnings("ignore", category=DeprecationWarning)
     script = load_script()
@@ -291,14 +289,7 @@ def worker(args) -> None:
     sargs = script.Args(env_id=args.worker_env, torch_threads=args.torch_threads)
     if args.iterations is not None:
         sargs.compile_iterations = args.iterations
-    # What start_run sets before the fit.
-    random.seed(sargs.seed)
-    np.random.seed(sargs.seed)  # noqa: NPY002
-    torch.manual_seed(sargs.seed)
-    torch.distributions.Distribution.set_default_validate_args(False)
-    if sargs.torch_threads > 0:
-        torch.set_num_threads(sargs.torch_threads)
-    keep_freed_memory()  # glibc keeps freed blocks for reuse (ROUTINE_GYM_KEEP_MEMORY=0: off)
+    seed_and_tune(sargs.seed, sargs.torch_threads)  # what start_run sets before the fit
     # What main does before learn_options.
     probe = script.make_env(sargs.env_id, sargs.seed, 0, training=True,
                             env_kwargs=script.train_env_kwargs(sargs))()

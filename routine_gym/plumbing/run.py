@@ -50,6 +50,7 @@ __all__ = [
     "eval_env_kwargs",
     "level_env_kwargs",
     "run_script",
+    "seed_and_tune",
     "start_run",
     "train_env_kwargs",
 ]
@@ -348,6 +349,22 @@ class Run:
         return path
 
 
+def seed_and_tune(seed: int, torch_threads: int) -> None:
+    """What `start_run` sets for the whole process, also what the benchmarks' workers set to time
+    a script's work as the script runs it: Python's, NumPy's and torch's global seeds, no
+    checking of distribution arguments, torch's threads (`torch_threads` > 0; 0 leaves torch's
+    own count) and freed memory kept for reuse (`routine_gym.plumbing.memory`)."""
+    random.seed(seed)
+    np.random.seed(seed)  # noqa: NPY002  (libraries draw from the global RNG)
+    torch.manual_seed(seed)
+    # The scripts build their distributions from network outputs that are valid by
+    # construction; checking them costs about a tenth of a MinAtar step (sampling is the same).
+    torch.distributions.Distribution.set_default_validate_args(False)
+    if torch_threads > 0:
+        torch.set_num_threads(torch_threads)
+    keep_freed_memory()  # a minibatch's blocks are reused, not page-faulted in again
+
+
 def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
               budget: str = "total_timesteps", lower_budget: bool = False,
               extra_checks: ExtraChecks = (), preset: Callable[[Any], None] | None = None
@@ -422,17 +439,9 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
         "hyperparameters",
         "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in vars(args).items()),
     )
-    random.seed(args.seed)
-    np.random.seed(args.seed)  # noqa: NPY002  (libraries draw from the global RNG)
-    torch.manual_seed(args.seed)
+    seed_and_tune(args.seed, args.torch_threads)
     rng = np.random.default_rng(args.seed)
     torch.backends.cudnn.deterministic = args.torch_deterministic
-    # The scripts build their distributions from network outputs that are valid by
-    # construction; checking them costs about a tenth of a MinAtar step (sampling is the same).
-    torch.distributions.Distribution.set_default_validate_args(False)
-    if args.torch_threads > 0:
-        torch.set_num_threads(args.torch_threads)
-    keep_freed_memory()  # a minibatch's blocks are reused, not page-faulted in again
     device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
     run = Run(args=args, name=name, path=path, writer=writer, device=device, rng=rng,
               checkpoint=checkpoint, budget=budget, saved_budget=saved_budget,
