@@ -294,7 +294,10 @@ def test_killed_run_resumes_from_its_last_checkpoint_and_finishes(rapl_a2c, tmp_
     assert final["iteration"] == 3000 // 10
     assert json.loads(final["args"])["total_timesteps"] == 3000
     # The resumed run logged into the same folder, only at steps after the checkpoint.
-    resumed = sorted(checkpoint_path.parent.glob("events.out.tfevents.*"))[-1]
+    # The last written (not the last by name: both names may carry the same second, and then
+    # the process ids decide).
+    resumed = max(checkpoint_path.parent.glob("events.out.tfevents.*"),
+                  key=lambda path: path.stat().st_mtime_ns)
     steps = _scalar_steps(resumed, "charts/SPS")
     assert min(steps) > killed_at and max(steps) == 3000
 
