@@ -70,6 +70,7 @@ from routine_gym.ppo import (
     clipped_policy_loss,
     clipped_value_loss,
     inner_lambda_returns,
+    inner_state_shares,
     normalize_advantages,
     routine_trace_decay,
     smdp_gae,
@@ -150,6 +151,11 @@ class Args:
     """coefficient of the value loss (λ_value)"""
     prim_coef: float = 1.0
     """coefficient of the primitive-level value loss (λ_prim), RAPL only"""
+    prim_epochs: int | None = None
+    """RAPL: in how many of a rollout's --update-epochs each state inside a routine is trained
+    (None: 1, each such state once a rollout, as RAPL-A2C trains it; --update-epochs: in every
+    epoch, as the decisions are, and as this script did before 2026-12-05, ~1.5× slower on
+    MinAtar; a run resumed from a checkpoint of before then keeps doing so)"""
     max_grad_norm: float = 0.5
     """the maximum norm for gradient clipping"""
     target_kl: float | None = None
@@ -250,6 +256,8 @@ def family_defaults(args: Args) -> None:
     for field, value in FAMILY_DEFAULTS.get(family, FAMILY_DEFAULTS["other"]).items():
         if getattr(args, field) is None:
             setattr(args, field, value)
+    if args.prim_epochs is None:
+        args.prim_epochs = 1
 
 
 def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
@@ -260,6 +268,9 @@ def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
             ("num_minibatches", args.num_minibatches is None or args.num_minibatches <= batch,
              f"≤ --num-envs × --num-steps ({batch})"),
             ("target_kl", args.target_kl is None or args.target_kl > 0, "> 0"),
+            ("prim_epochs", args.prim_epochs is None or args.update_epochs is None
+             or args.prim_epochs <= args.update_epochs,
+             f"≤ --update-epochs ({args.update_epochs})"),
             ("selection", args.mode != "ppo" or args.selection == "paper",
              "paper with --mode ppo (no routines)")]
 
@@ -366,6 +377,8 @@ def main(args: Args) -> None:
     num_routines = len(library) if library is not None else 0
     num_primitives = num_actions - num_routines
     max_len = max(library.lengths) if library is not None else 1
+    # None only in a run resumed from a checkpoint made before --prim-epochs: every epoch.
+    prim_epochs = args.prim_epochs if args.prim_epochs is not None else args.update_epochs
 
     agent = Agent(args.env_id, envs.single_observation_space, num_actions).to(device)
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5,
@@ -487,16 +500,18 @@ def main(args: Args) -> None:
         b_values = torch.as_tensor(values.reshape(-1), device=device)
 
         # Optimise the policy and the value network: epochs of shuffled minibatches; each
-        # minibatch also takes its share of the states inside routines (RAPL).
+        # minibatch also takes its share of the states inside routines (RAPL) that its epoch
+        # trains: each of them in --prim-epochs of the epochs, the epochs' shares dealt from
+        # shuffled decks (`inner_state_shares`).
         b_inds = np.arange(batch_size)
         clipfracs = []
         prim_loss = torch.zeros((), device=device)
+        shares = inner_state_shares(num_inner, args.update_epochs, prim_epochs)
         for _ in range(args.update_epochs):
             np.random.shuffle(b_inds)
             # CleanRL's consecutive slices of the shuffled indices (sizes differing by at most
-            # one where the batch does not divide), and as many slices of the inner states.
-            inner_parts = (np.array_split(np.random.permutation(num_inner), args.num_minibatches)
-                           if num_inner else [()] * args.num_minibatches)
+            # one where the batch does not divide), and as many slices of the epoch's share.
+            inner_parts = np.array_split(next(shares), args.num_minibatches)
             for part, inner_part in zip(np.array_split(b_inds, args.num_minibatches),
                                         inner_parts, strict=True):
                 mb_inds = torch.as_tensor(part, device=device)

@@ -32,6 +32,7 @@ where no episode is truncated).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -40,6 +41,7 @@ __all__ = [
     "clipped_policy_loss",
     "clipped_value_loss",
     "inner_lambda_returns",
+    "inner_state_shares",
     "normalize_advantages",
     "routine_trace_decay",
     "smdp_gae",
@@ -190,6 +192,38 @@ def inner_lambda_returns(
     decay = float(gae_lambda) ** left
     end = (1.0 - decay) * value_after[:, None, :] + decay * return_after[:, None, :]
     return np.where(executed, tail + gamma**left * end, 0.0)
+
+
+def inner_state_shares(num_inner: int, epochs: int, passes: int,
+                       permutation: Callable[[int], np.ndarray] = np.random.permutation
+                       ) -> Iterator[np.ndarray]:
+    """The states inside routines each of an update's `epochs` trains: in all, every one of
+    the `num_inner` states `passes` times (1 ≤ passes ≤ epochs).
+
+    The states are dealt from shuffled decks (`permutation(num_inner)`, a new deck drawn when
+    the last runs out, only then, so a lazy consumer draws as the update goes), in shares of
+    `passes · num_inner / epochs` (sizes as `np.array_split`'s). With `passes == epochs` each
+    epoch takes a fresh deck whole: every state in every epoch, as PPO trains its decisions.
+    With `passes == 1` (`rapl_ppo.py`'s default) the epochs split one deck: each state is
+    trained once per rollout, as RAPL-A2C trains it. An epoch splits its share among its
+    minibatches (`np.array_split`).
+
+    Example:
+        >>> backwards = lambda n: np.arange(n)[::-1]
+        >>> [s.tolist() for s in inner_state_shares(6, 4, 1, backwards)]  # 6 split 2, 2, 1, 1
+        [[5, 4], [3, 2], [1], [0]]
+        >>> [s.tolist() for s in inner_state_shares(3, 2, 2, backwards)]  # a deck each epoch
+        [[2, 1, 0], [2, 1, 0]]
+    """
+    if not 1 <= passes <= epochs:
+        raise ValueError(f"passes must be in [1, epochs={epochs}], actual value: {passes}")
+    deck = np.empty(0, dtype=np.int64)
+    whole, extra = divmod(passes * num_inner, epochs)
+    for size in [whole + 1] * extra + [whole] * (epochs - extra):
+        while len(deck) < size:
+            deck = np.concatenate([deck, permutation(num_inner)])
+        share, deck = deck[:size], deck[size:]
+        yield share
 
 
 def normalize_advantages(advantages: Any) -> Any:

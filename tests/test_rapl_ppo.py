@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from resume_checks import assert_same, kill_after_first_checkpoint
 from script_loader import load_script
 
@@ -28,6 +30,7 @@ from routine_gym.ppo import (
     clipped_policy_loss,
     clipped_value_loss,
     inner_lambda_returns,
+    inner_state_shares,
     normalize_advantages,
     routine_trace_decay,
     smdp_gae,
@@ -235,6 +238,70 @@ def test_advantages_are_normalised_with_the_unbiased_std():
     np.testing.assert_allclose(out.numpy(), [-1 / math.sqrt(2), 1 / math.sqrt(2)], rtol=1e-7)
 
 
+# -- which epochs train the states inside routines ----------------------------------------------
+
+
+class Decks:
+    """`permutation` for `inner_state_shares`: the states backwards, counting the decks drawn."""
+
+    def __init__(self) -> None:
+        self.drawn = 0
+
+    def __call__(self, n: int) -> np.ndarray:
+        self.drawn += 1
+        return np.arange(n)[::-1]
+
+
+def test_by_default_the_epochs_split_one_deck_so_each_inner_state_is_trained_once():
+    # 6 states, 4 epochs, 1 pass: 6 = 2 + 2 + 1 + 1 (np.array_split's sizes) of one deck.
+    decks = Decks()
+    shares = [s.tolist() for s in inner_state_shares(6, 4, 1, decks)]
+    assert shares == [[5, 4], [3, 2], [1], [0]]
+    assert decks.drawn == 1
+
+
+def test_with_a_pass_per_epoch_each_epoch_draws_its_own_deck_when_it_starts():
+    # passes = epochs: every state in every epoch, a fresh deck drawn as each epoch asks for its
+    # share (lazily: rapl_ppo.py shuffles the decisions first, so the random draws come in the
+    # order the script made them before --prim-epochs existed).
+    decks = Decks()
+    shares = inner_state_shares(3, 2, 2, decks)
+    assert decks.drawn == 0
+    assert next(shares).tolist() == [2, 1, 0] and decks.drawn == 1
+    assert next(shares).tolist() == [2, 1, 0] and decks.drawn == 2
+
+
+def test_a_share_runs_on_into_the_next_deck():
+    # 5 states, 4 epochs, 2 passes: 10 = 3 + 3 + 2 + 2 from decks [4 3 2 1 0] [4 3 2 1 0].
+    decks = Decks()
+    shares = [s.tolist() for s in inner_state_shares(5, 4, 2, decks)]
+    assert shares == [[4, 3, 2], [1, 0, 4], [3, 2], [1, 0]]
+    assert decks.drawn == 2
+
+
+def test_no_inner_states_draw_nothing_and_bad_passes_are_refused():
+    decks = Decks()
+    assert [len(s) for s in inner_state_shares(0, 3, 1, decks)] == [0, 0, 0]
+    assert decks.drawn == 0
+    for passes in (0, 4):
+        with pytest.raises(ValueError, match=f"passes must be in \\[1, epochs=3\\], actual "
+                                             f"value: {passes}"):
+            next(inner_state_shares(5, 3, passes))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 40), st.integers(1, 6), st.data())
+def test_each_inner_state_is_trained_passes_times_in_shares_of_even_size(num_inner, epochs, data):
+    passes = data.draw(st.integers(1, epochs))
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**32 - 1)))
+    shares = list(inner_state_shares(num_inner, epochs, passes, rng.permutation))
+    assert len(shares) == epochs
+    sizes = [len(s) for s in shares]
+    assert max(sizes) - min(sizes) <= 1 and sizes == sorted(sizes, reverse=True)
+    counts = np.bincount(np.concatenate(shares).astype(np.int64), minlength=num_inner)
+    assert counts.tolist() == [passes] * num_inner
+
+
 # -- the script ------------------------------------------------------------------------------
 
 
@@ -381,6 +448,11 @@ def test_bad_ppo_settings_are_refused_by_name(rapl_ppo, tmp_path):
         run(rapl_ppo, tmp_path, env_id="CartPole-v1", mode="ppo", gae_lambda=1.5)
     with pytest.raises(UsageError, match="--target-kl needs to be > 0"):
         run(rapl_ppo, tmp_path, env_id="CartPole-v1", mode="ppo", target_kl=0.0)
+    with pytest.raises(UsageError, match=r"--prim-epochs needs to be ≤ --update-epochs \(2\), "
+                                         r"actual value: 3"):
+        run(rapl_ppo, tmp_path, env_id="CartPole-v1", mode="rapl", prim_epochs=3)
+    with pytest.raises(UsageError, match="--prim-epochs needs to be ≥ 1, actual value: 0"):
+        run(rapl_ppo, tmp_path, env_id="CartPole-v1", mode="rapl", prim_epochs=0)
     assert list(tmp_path.iterdir()) == []  # refused before a run folder was made
 
 
@@ -441,6 +513,53 @@ def test_a_killed_run_resumes_from_the_unbroken_runs_state_and_finishes_like_it(
     logged = scalars(resumed)
     assert logged["counters/updates"] == list(range(killed["iteration"] + 1, 41))
     assert min(logged["counters/decisions"]) > at
+
+
+def record_shares(rapl_ppo, monkeypatch) -> list[tuple[int, int, int, list[np.ndarray]]]:
+    """Each update's `inner_state_shares` call in the script: (states, epochs, passes, shares)."""
+    calls = []
+
+    def recording(num_inner, epochs, passes):
+        shares = []
+        calls.append((num_inner, epochs, passes, shares))
+        for share in inner_state_shares(num_inner, epochs, passes):
+            shares.append(share)
+            yield share
+
+    monkeypatch.setattr(rapl_ppo, "inner_state_shares", recording)
+    return calls
+
+
+@pytest.mark.parametrize(("prim_epochs", "passes"), [(None, 1), (2, 2)])
+def test_the_update_trains_each_inner_state_in_prim_epochs_of_its_epochs(
+        rapl_ppo, tmp_path, monkeypatch, prim_epochs, passes):
+    # RAPL on MiniQbert, 2 envs × 8 decisions, 2 epochs of 2 minibatches, 4 updates.
+    calls = record_shares(rapl_ppo, monkeypatch)
+    run(rapl_ppo, tmp_path, env_id="MiniQbert-v0", mode="rapl", prim_epochs=prim_epochs,
+        budget_unit="decisions")
+    assert len(calls) == 4 and sum(num_inner for num_inner, *_ in calls) > 0
+    for num_inner, epochs, used, shares in calls:
+        assert (epochs, used, len(shares)) == (2, passes, 2)
+        counts = np.bincount(np.concatenate(shares).astype(np.int64), minlength=num_inner)
+        assert counts.tolist() == [passes] * num_inner
+
+
+def test_a_checkpoint_from_before_prim_epochs_resumes_training_inner_states_every_epoch(
+        rapl_ppo, tmp_path, monkeypatch):
+    # A checkpoint's saved settings without the field (made before the flag existed) resume
+    # as that run was made: every inner state in every epoch.
+    # Two updates of 16 decisions, then two more on a resume with a budget of 64.
+    folder = run(rapl_ppo, tmp_path, env_id="MiniQbert-v0", mode="rapl",
+                 budget_unit="decisions", total_timesteps=32, checkpoint_every=32)
+    checkpoint = torch.load(folder / "checkpoint.pt", weights_only=True)
+    saved = json.loads(checkpoint["args"])
+    assert (checkpoint["decisions"], saved["prim_epochs"]) == (32, 1)
+    del saved["prim_epochs"]
+    checkpoint["args"] = json.dumps(saved)
+    torch.save(checkpoint, folder / "checkpoint.pt")
+    calls = record_shares(rapl_ppo, monkeypatch)
+    rapl_ppo.main(rapl_ppo.Args(resume=str(folder), total_timesteps=64))
+    assert [passes for _, _, passes, _ in calls] == [2, 2]
 
 
 def adam_steps(checkpoint: dict) -> int:

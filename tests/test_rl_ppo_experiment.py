@@ -59,10 +59,12 @@ def test_ppo_runs_are_rapl_ppo_with_the_sweeps_flags():
         entry = runs[(method, "MinAtar/Breakout-v1", 2)]
         assert entry.run.script == "rapl_ppo" and entry.variant == {} and entry.run.needs == ()
         # MinAtar's demos ship: no --demo (the script's default), no expert; the env family's
-        # PPO defaults (64 envs): no --num-envs at cpu.
+        # PPO defaults (64 envs): no --num-envs at cpu. RAPL-PPO names its default
+        # --prim-epochs 1, so its runs from before the flag (every epoch) are not these.
         assert dict(entry.run.flags) == {
             "env-id": "MinAtar/Breakout-v1", "seed": 2, "total-timesteps": 10**6,
-            "eval-episodes": 30, "mode": MODES[method], "checkpoint-every": 200_000}
+            "eval-episodes": 30, "mode": MODES[method], "checkpoint-every": 200_000,
+            **({"prim-epochs": 1} if method == "RAPL-PPO" else {})}
         qbert = dict(runs[(method, "MiniQbert-v0", 1)].run.flags)
         assert qbert["reward-scale"] == 0.01  # as every MiniQbert run of the experiment
     smoke = {e.method: dict(e.run.flags) for e in build("rl", "smoke")}

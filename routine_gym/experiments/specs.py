@@ -312,9 +312,15 @@ class Builder:
         as `a2c`'s (RAPL-PPO and MacroAction-PPO mine the same demo as RAPL-A2C: shipped, or
         recorded by the same expert); the env family's PPO defaults, so flags left unset."""
         mode = {"PPO": "ppo", "RAPL-PPO": "rapl", "MacroAction-PPO": "macro"}[method]
+        flags: list[tuple[str, Any]] = [("mode", mode), *extra]
+        if mode == "rapl":
+            # Named although it is the default: the script trained the states inside routines
+            # in every epoch before 2026-12-05, and those runs (the same flags without it) must
+            # not count as these.
+            flags.append(("prim-epochs", 1))
         return self.run("rapl_ppo", method, env_id, seed,
-                        steps if steps is not None else self.budget.steps,
-                        [("mode", mode), *extra], variant, demo=mode != "ppo")
+                        steps if steps is not None else self.budget.steps, flags, variant,
+                        demo=mode != "ppo")
 
     def seeds(self) -> range:
         return range(1, self.budget.seeds + 1)

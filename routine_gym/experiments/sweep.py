@@ -92,6 +92,12 @@ def _manifest_row(row: Any) -> bool:
             and isinstance(row.get("seed"), int) and isinstance(row.get("variant"), dict))
 
 
+def _place(row: dict[str, Any]) -> str:
+    """What a manifest's run stands for: its role, method, game, seed and variant."""
+    return json.dumps([row["role"], row["method"], row["env_id"], row["seed"], row["variant"]],
+                      sort_keys=True)
+
+
 def _write_manifest(out: Path, name: str, budget: str, entries: Sequence[Entry]) -> None:
     path = out / f"{name}.json"
     experiment = EXPERIMENTS[name]
@@ -101,13 +107,16 @@ def _write_manifest(out: Path, name: str, budget: str, entries: Sequence[Entry])
             raise UsageError(
                 f"{out} already holds experiment {name} at budget {old.get('budget')} "
                 f"(version {old.get('version')}); use another --out for budget {budget}")
-        # Runs listed before (other --seeds/--envs) stay listed.
+        # Runs listed before (other --seeds/--envs) stay listed, but for those whose place
+        # (method, game, seed, variant) a run of other flags now takes: the experiment changed
+        # that run's flags (RAPL-PPO's --prim-epochs), so the old run is no longer its run.
         rows = old.get("runs", [])
         if not isinstance(rows, list) or not all(_manifest_row(r) for r in rows):
             raise UsageError(f"{path}: `runs` is not a list of run entries (objects with a "
                              "key, role, env_id, method, variant and seed); delete it and run "
                              "again: the sweep writes it anew")
-        keep = {json.dumps(r, sort_keys=True) for r in rows}
+        taken = {_place(e.manifest()) for e in entries}
+        keep = {json.dumps(r, sort_keys=True) for r in rows if _place(r) not in taken}
     else:
         keep = set()
     rows = keep | {json.dumps(e.manifest(), sort_keys=True) for e in entries}

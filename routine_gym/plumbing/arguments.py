@@ -62,6 +62,7 @@ DOMAINS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "learning_starts": _AT_LEAST_0,
     "num_minibatches": _AT_LEAST_1,
     "update_epochs": _AT_LEAST_1,
+    "prim_epochs": _AT_LEAST_1,
     "disc_minibatches": _AT_LEAST_1,
     "disc_epochs": _AT_LEAST_1,
     "clip_coef": _POSITIVE,
