@@ -152,6 +152,34 @@ def test_the_committed_cpu_snapshot_keeps_its_runs_and_a_sweep_without_ppo_runs_
     assert manifest["version"] == 2 and len(manifest["runs"]) == 90
 
 
+def test_a_sweep_with_rapl_ppos_runs_from_before_prim_epochs_reruns_them_and_lists_them_once(
+        tmp_path, monkeypatch):
+    # The folder of a user who swept rl before 2026-12-05: RAPL-PPO's runs had the same flags
+    # but --prim-epochs (every epoch, the script's only behaviour then), so other keys.
+    built = build("rl", "cpu")
+    before = {e.run.key: dataclasses.replace(
+        e.run, flags=tuple(f for f in e.run.flags if f[0] != "prim-epochs")).key
+        for e in built if e.method == "RAPL-PPO"}
+    assert len(before) == 18 and not set(before) & set(before.values())
+    manifest = json.loads((SNAPSHOT / "rl.json").read_text())
+    for row in manifest["runs"]:  # every run finished
+        shutil.copytree(SNAPSHOT / "runs" / row["key"],
+                        tmp_path / "runs" / before.get(row["key"], row["key"]))
+        row["key"] = before.get(row["key"], row["key"])
+    (tmp_path / "rl.json").write_text(json.dumps(manifest))
+    submitted: list[dict] = []
+    monkeypatch.setattr(sweep, "LocalBackend", lambda jobs: _Finishes(submitted))
+    stream = io.StringIO()
+    assert sweep.run_experiment("rl", "cpu", tmp_path, jobs=2, stream=stream).ok
+    assert "[rl] budget cpu: 90 runs, 72 finished before, 18 to run" in stream.getvalue()
+    assert sorted(c["key"] for c in submitted) == sorted(before)
+    assert all(c["flags"]["prim-epochs"] == 1 for c in submitted)
+    # The old runs are no longer listed (their folders stay, unlisted); nothing else moved.
+    rows = json.loads((tmp_path / "rl.json").read_text())["runs"]
+    assert sorted(r["key"] for r in rows) == sorted(e.run.key for e in built)
+    assert (tmp_path / "runs" / next(iter(before.values())) / "result.json").is_file()
+
+
 class _Finishes:
     """A backend that runs nothing: it records each run's config and reports it finished."""
 
