@@ -24,9 +24,11 @@ With every ℓ = 1 this is CleanRL's GAE exactly. A_prim trains the critic at ev
 state *inside* a routine (k = ℓ_i − j steps before its end) on the λ-return from there, the
 same mixture at the routine's end as the decision's own target; with λ = 1 these are
 RAPL-A2C's targets (`routine_gym.returns.primitive_returns`). Its loss is clipped like the
-value loss, against the values of those states before the update. `--mode macro` treats
-routines as black boxes (summed reward, one γ and one λ per decision, no A_prim); `--mode ppo`
-has no routines.
+value loss, against the values of those states before the update, and each such state is
+trained in `--prim-epochs` (default 1) of the update's epochs, once a rollout as in RAPL-A2C,
+where the decisions are trained in every epoch (`routine_gym.ppo.inner_state_shares`).
+`--mode macro` treats routines as black boxes (summed reward, one γ and one λ per decision,
+no A_prim); `--mode ppo` has no routines.
 
 Defaults per env family (flags left unset): Atari as CleanRL's `ppo_atari.py`, Procgen as its
 `ppo_procgen.py` (IMPALA CNN), MinAtar as gymnax-blines' MinAtar PPO (with γ 0.99, the

@@ -19,8 +19,10 @@ process over the same steps (/proc) is reported beside it: a shared machine dist
 than wall time. RAPL mines its routines from `demos/MinAtar-Breakout-v1.npz`.
 
 `--explain` adds rapl_ppo with `--update-epochs 1` against the same rapl_a2c runs: PPO's
-default makes 4 gradient passes over every sample (A2C one), which is where its time goes on
-MinAtar's small network; one epoch shows what the rest of the script costs.
+default makes 4 gradient passes over every decision (A2C one), which is where its time goes on
+MinAtar's small network; one epoch shows what the rest of the script costs. It also adds
+RAPL-PPO with `--prim-epochs 4`, the script before 2026-12-05, which trained every state
+inside a routine in all 4 epochs too (the default trains each once a rollout, as RAPL-A2C).
 
 Usage:
     python bench/bench_ppo_speed.py                                   # 2 repeats, ~5 minutes
@@ -48,14 +50,19 @@ from common import base_machine_info, git_head, load_average, memory, tuning_env
 REPO = Path(__file__).resolve().parents[1]
 SCRIPTS = {"a2c": REPO / "algos" / "rapl_a2c.py", "ppo": REPO / "algos" / "rapl_ppo.py"}
 #: The configurations: (script, mode, extra flags), and the pairs compared (A2C's first). The
-#: `-e1` pairs are for explanation, not acceptance: rapl_ppo with one epoch per rollout, so
-#: that each sample gets one gradient pass as in A2C (PPO's default is 4).
+#: `-e1` and `-p4` pairs are for explanation, not acceptance: rapl_ppo with one epoch per
+#: rollout, so that each sample gets one gradient pass as in A2C (PPO's default is 4), and
+#: RAPL-PPO training the states inside routines in every epoch (`--prim-epochs 4`).
 CONFIGS = {"a2c": ("a2c", "a2c", ()), "ppo": ("ppo", "ppo", ()),
            "rapl-a2c": ("a2c", "rapl", ()), "rapl-ppo": ("ppo", "rapl", ()),
            "ppo-e1": ("ppo", "ppo", ("--update-epochs", "1")),
-           "rapl-ppo-e1": ("ppo", "rapl", ("--update-epochs", "1"))}
+           "rapl-ppo-e1": ("ppo", "rapl", ("--update-epochs", "1")),
+           "rapl-ppo-p4": ("ppo", "rapl", ("--prim-epochs", "4"))}
 PAIRS = (("a2c", "ppo"), ("rapl-a2c", "rapl-ppo"))
-EXPLAIN_PAIRS = (("a2c", "ppo-e1"), ("rapl-a2c", "rapl-ppo-e1"))
+EXPLAIN_PAIRS = (("a2c", "ppo-e1"), ("rapl-a2c", "rapl-ppo-e1"), ("rapl-a2c", "rapl-ppo-p4"))
+#: What each explanation pair's rapl_ppo differs by.
+EXPLAINED = {"ppo-e1": "one epoch", "rapl-ppo-e1": "one epoch",
+             "rapl-ppo-p4": "inner states in every epoch, as before 2026-12-05"}
 
 
 @dataclass
@@ -132,7 +139,7 @@ def summary_line(results: list[Result], args, threads: int, a2c: str, ppo: str) 
     best = {name: max(r.sps for r in mine if r.config == name) for name in (a2c, ppo)}
     verdict = "yes" if statistics.median(ratios) >= 1.0 else "no"
     if (a2c, ppo) in EXPLAIN_PAIRS:
-        verdict += " (one epoch: an explanation, not the acceptance)"
+        verdict += f" ({EXPLAINED[ppo]}: an explanation, not the acceptance)"
     return (f"- {label}: per repeat {', '.join(f'{x:.2f}×' for x in ratios)} in wall-clock "
             f"SPS (median {statistics.median(ratios):.2f}×); per CPU second "
             f"{', '.join(f'{x:.2f}×' for x in cpu_ratios) or '–'}. Best repeats: "
@@ -199,7 +206,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=int, default=100_000, help="agent steps timed")
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--explain", action="store_true",
-                        help="also run the one-epoch pairs (rapl_ppo --update-epochs 1)")
+                        help="also run the explanation pairs (rapl_ppo --update-epochs 1, "
+                             "and RAPL-PPO --prim-epochs 4)")
     parser.add_argument("--torch-threads", type=int, nargs="+", default=[0, 1],
                         help="the scripts' --torch-threads settings, each measured (0: torch's "
                              "default)")
