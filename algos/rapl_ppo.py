@@ -156,8 +156,8 @@ class Args:
     prim_epochs: int | None = None
     """RAPL: in how many of a rollout's --update-epochs each state inside a routine is trained
     (None: 1, each such state once a rollout, as RAPL-A2C trains it; --update-epochs: in every
-    epoch, as the decisions are, and as this script did before 2026-12-05, ~1.5× slower on
-    MinAtar; a run resumed from a checkpoint of before then keeps doing so)"""
+    epoch, as the decisions are, and as this script did before 2026-12-05, 1.2-1.5× slower on
+    MinAtar Breakout; a run resumed from a checkpoint of before then keeps doing so)"""
     max_grad_norm: float = 0.5
     """the maximum norm for gradient clipping"""
     target_kl: float | None = None
