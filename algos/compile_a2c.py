@@ -50,7 +50,6 @@ import gymnasium as gym
 import numpy as np
 import torch
 import torch.nn as nn
-from torch.distributions.categorical import Categorical
 
 import routine_gym
 from routine_gym.baselines.compile import (
@@ -72,7 +71,7 @@ from routine_gym.baselines.compile import (
 )
 from routine_gym.envs.factory import make_env
 from routine_gym.imitation.agent_view import agent_view_states, decision_steps
-from routine_gym.networks import ObservationEncoder, layer_init
+from routine_gym.networks import ObservationEncoder, categorical_policy, layer_init
 from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent
 from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.loading import load_demo
@@ -203,10 +202,8 @@ class Agent(nn.Module):
 
     def get_action_and_value(self, obs: torch.Tensor, action: torch.Tensor | None = None):
         hidden = self.encoder(obs)
-        dist = Categorical(logits=self.actor(hidden))
-        if action is None:
-            action = dist.sample()
-        return action, dist.log_prob(action), dist.entropy(), self.critic(hidden).squeeze(-1)
+        action, logprob, entropy = categorical_policy(self.actor(hidden), action)
+        return action, logprob, entropy, self.critic(hidden).squeeze(-1)
 
 
 #: What a checkpoint of this script holds (`--resume` checks for each).

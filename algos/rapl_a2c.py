@@ -39,12 +39,16 @@ import gymnasium as gym
 import numpy as np
 import torch
 import torch.nn as nn
-from torch.distributions.categorical import Categorical
 
 import routine_gym
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_primitive_env, make_vector_env
-from routine_gym.networks import ObservationEncoder, layer_init
+from routine_gym.networks import (
+    ObservationEncoder,
+    categorical_policy,
+    layer_init,
+    sample_categorical,
+)
 from routine_gym.plumbing.arguments import given_flags
 from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent
 from routine_gym.plumbing.errors import UsageError
@@ -224,22 +228,23 @@ class Agent(nn.Module):
         return self.critic(self.encoder(obs)).squeeze(-1)
 
     def get_action_and_value(self, obs: torch.Tensor, action: torch.Tensor | None = None):
+        # A categorical policy: `Categorical(logits=...)`'s numbers and draws, computed without
+        # building the distribution object (`routine_gym.networks`), on the hot path.
         hidden = self.encoder(obs)
-        dist = Categorical(logits=self.actor(hidden))
-        if action is None:
-            action = dist.sample()
-        return action, dist.log_prob(action), dist.entropy(), self.critic(hidden).squeeze(-1)
+        action, logprob, entropy = categorical_policy(self.actor(hidden), action)
+        return action, logprob, entropy, self.critic(hidden).squeeze(-1)
 
     def act(self, obs: torch.Tensor) -> torch.Tensor:
         """Sample actions (the same draws as `get_action_and_value`, nothing else computed)."""
-        return Categorical(logits=self.actor(self.encoder(obs))).sample()
+        return sample_categorical(self.actor(self.encoder(obs)))
 
     def evaluate(self, obs: torch.Tensor, action: torch.Tensor):
         """One pass over a rollout: log-probabilities and entropies of the `len(action)` first
         states' actions, and the values of all `len(obs)` states (the rest: bootstraps)."""
         hidden = self.encoder(obs)
-        dist = Categorical(logits=self.actor(hidden[: len(action)]))
-        return dist.log_prob(action), dist.entropy(), self.critic(hidden).squeeze(-1)
+        _, logprob, entropy = categorical_policy(self.actor(hidden[: len(action)]),
+                                                           action)
+        return logprob, entropy, self.critic(hidden).squeeze(-1)
 
 
 #: What a checkpoint of this script holds (`--resume` checks for each).

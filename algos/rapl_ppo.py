@@ -52,12 +52,11 @@ import gymnasium as gym
 import numpy as np
 import torch
 import torch.nn as nn
-from torch.distributions.categorical import Categorical
 
 import routine_gym
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_primitive_env, make_vector_env
-from routine_gym.networks import ObservationEncoder, layer_init
+from routine_gym.networks import ObservationEncoder, categorical_policy, layer_init
 from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent
 from routine_gym.plumbing.loading import load_demo
 from routine_gym.plumbing.run import (
@@ -304,26 +303,25 @@ class Agent(nn.Module):
         return self.critic(encoder(obs)).squeeze(-1)
 
     def get_action_and_value(self, obs: torch.Tensor, action: torch.Tensor | None = None):
+        # A categorical policy: `Categorical(logits=...)`'s numbers and draws, computed without
+        # building the distribution object (`routine_gym.networks`), on the hot path.
         actor_hidden, critic_hidden = self.features(obs)
-        dist = Categorical(logits=self.actor(actor_hidden))
-        if action is None:
-            action = dist.sample()
-        return action, dist.log_prob(action), dist.entropy(), self.critic(critic_hidden).squeeze(-1)
+        action, logprob, entropy = categorical_policy(self.actor(actor_hidden), action)
+        return action, logprob, entropy, self.critic(critic_hidden).squeeze(-1)
 
     def act(self, obs: torch.Tensor):
         """Sampled actions, their log-probabilities and the states' values (no entropy)."""
         actor_hidden, critic_hidden = self.features(obs)
-        dist = Categorical(logits=self.actor(actor_hidden))
-        action = dist.sample()
-        return action, dist.log_prob(action), self.critic(critic_hidden).squeeze(-1)
+        action, logprob, _ = categorical_policy(self.actor(actor_hidden))
+        return action, logprob, self.critic(critic_hidden).squeeze(-1)
 
     def evaluate(self, obs: torch.Tensor, action: torch.Tensor):
         """One pass over a minibatch: log-probabilities and entropies of the `len(action)`
         first states' actions, and the values of all `len(obs)` states (the rest: states
         inside routines)."""
         actor_hidden, critic_hidden = self.features(obs, len(action))
-        dist = Categorical(logits=self.actor(actor_hidden))
-        return dist.log_prob(action), dist.entropy(), self.critic(critic_hidden).squeeze(-1)
+        _, logprob, entropy = categorical_policy(self.actor(actor_hidden), action)
+        return logprob, entropy, self.critic(critic_hidden).squeeze(-1)
 
 
 #: What a checkpoint of this script holds (`--resume` checks for each).
