@@ -141,8 +141,9 @@ class ObservationEncoder(nn.Module):
 # ---------------------------------------------------------------------------------------------
 # The categorical policy's three uses, as `torch.distributions.Categorical(logits=...)` computes
 # them (the same operations in the same order, so the same numbers and the same draws from
-# torch's generator) without building the distribution: its argument checks and lazy properties
-# cost about as much as MinAtar's network's forward pass on 16 observations.
+# torch's generator) without building the distribution: the object, its lazy properties and
+# shape bookkeeping cost ~20 µs a call even with argument checks off, a seventh of MinAtar's
+# acting pass on 16 observations.
 
 
 def sample_categorical(logits: torch.Tensor) -> torch.Tensor:
