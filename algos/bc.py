@@ -15,6 +15,10 @@ resumes (`--resume`) exactly where it stopped: same batches, same optimizer stat
 
 from __future__ import annotations
 
+from routine_gym.plumbing.openmp import shorten_spin
+
+shorten_spin()  # before torch loads OpenMP: a shorter spin of its idle threads (see there)
+
 import os
 import time
 import warnings

@@ -40,6 +40,10 @@ evaluated policy runs the controller's options itself, one primitive a call, exa
 
 from __future__ import annotations
 
+from routine_gym.plumbing.openmp import shorten_spin
+
+shorten_spin()  # before torch loads OpenMP: a shorter spin of its idle threads (see there)
+
 import os
 import time
 import warnings

@@ -23,6 +23,10 @@ optimizers, step count and random generators as they were; the envs start fresh 
 
 from __future__ import annotations
 
+from routine_gym.plumbing.openmp import shorten_spin
+
+shorten_spin()  # before torch loads OpenMP: a shorter spin of its idle threads (see there)
+
 import os
 import time
 import warnings

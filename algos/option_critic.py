@@ -25,6 +25,10 @@ the options that ended in the last logging window.
 
 from __future__ import annotations
 
+from routine_gym.plumbing.openmp import shorten_spin
+
+shorten_spin()  # before torch loads OpenMP: a shorter spin of its idle threads (see there)
+
 import os
 import time
 import warnings

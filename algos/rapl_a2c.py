@@ -28,6 +28,10 @@ The authors' released code differs from the paper in ways SPEC §5b lists; each 
 
 from __future__ import annotations
 
+from routine_gym.plumbing.openmp import shorten_spin
+
+shorten_spin()  # before torch loads OpenMP: a shorter spin of its idle threads (see there)
+
 import json
 import os
 import time

@@ -37,6 +37,10 @@ alignment of its primitive actions with the demo's, in `eval.json`.
 
 from __future__ import annotations
 
+from routine_gym.plumbing.openmp import shorten_spin
+
+shorten_spin()  # before torch loads OpenMP: a shorter spin of its idle threads (see there)
+
 import json
 import os
 import time

@@ -88,6 +88,8 @@ from typing import NamedTuple
 
 from common import base_machine_info, git_head, load_average, memory, tuning_env_vars
 
+from routine_gym.plumbing.openmp import shorten_spin
+
 REPO = Path(__file__).resolve().parents[1]
 SCRIPT = REPO / "algos" / "rapl_a2c.py"
 #: The SPEC §7 target: ours / SB3 in agent steps per second.
@@ -339,7 +341,10 @@ def run_worker(name: str, config: Config, args, repeat: int) -> Result:
             "--steps", str(args.steps), "--worker-threads", str(threads)]
     result = Result(name, repeat, shlex.join(cmd), "default" if threads == 0 else str(threads),
                     load_average())
-    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
+    env = dict(os.environ)
+    if config.kind == "net":  # the bound under the scripts' OpenMP spin; SB3 as its users run it
+        shorten_spin(env)
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, env=env)
     result.returncode = proc.returncode
     line = next((x for x in reversed(proc.stdout.splitlines()) if x.startswith("{")), None)
     if proc.returncode != 0 or line is None:
@@ -612,7 +617,10 @@ def net_worker(args) -> None:
                   f"RMSprop(lr={defaults.learning_rate:g}, alpha={defaults.rmsprop_alpha:g}, "
                   f"eps={defaults.rmsprop_eps:g}, foreach=True) step; {NET_BATCHES} random "
                   "input batches reused cyclically, no env; "
-                  f"{warm} warm-up + {timed} timed rollouts"),
+                  f"{warm} warm-up + {timed} timed rollouts; "
+                  f"GOMP_SPINCOUNT={os.environ.get('GOMP_SPINCOUNT', 'unset')} (the scripts' "
+                  "OpenMP spin, `routine_gym.plumbing.openmp`; SB3 runs with libgomp's "
+                  "default, as its users run it)"),
     }))
 
 
