@@ -54,10 +54,11 @@ def memory() -> str:
     return "unknown"
 
 
-#: The environment variables that change a benchmark's speed: threads, and malloc's handling of
-#: freed memory (`routine_gym.plumbing.memory`).
-TUNING_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "ROUTINE_GYM_KEEP_MEMORY",
-               "MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
+#: The environment variables that change a benchmark's speed: threads, OpenMP's spin
+#: (`routine_gym.plumbing.openmp`: a benchmark that loads a script gets the script's) and
+#: malloc's handling of freed memory (`routine_gym.plumbing.memory`).
+TUNING_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "GOMP_SPINCOUNT", "OMP_WAIT_POLICY",
+               "ROUTINE_GYM_KEEP_MEMORY", "MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
 
 
 def tuning_env_vars() -> str:
