@@ -156,9 +156,13 @@ def sample_categorical(logits: torch.Tensor) -> torch.Tensor:
         >>> _ = torch.manual_seed(0); torch.equal(ours, Categorical(logits=logits).sample())
         True
     """
-    n = logits.shape[-1]
-    probs = torch.softmax(logits - logits.logsumexp(dim=-1, keepdim=True), dim=-1)
-    return torch.multinomial(probs.reshape(-1, n), 1, True).T.reshape(logits.shape[:-1])
+    return _draw(torch.softmax(logits - logits.logsumexp(dim=-1, keepdim=True), dim=-1))
+
+
+def _draw(probs: torch.Tensor) -> torch.Tensor:
+    """One draw per row of `probs` `[..., n]`, as `Categorical.sample()` makes it."""
+    n = probs.shape[-1]
+    return torch.multinomial(probs.reshape(-1, n), 1, True).T.reshape(probs.shape[:-1])
 
 
 def categorical_policy(
@@ -181,8 +185,7 @@ def categorical_policy(
     probs = None
     if actions is None:
         probs = torch.softmax(logits, dim=-1)
-        actions = torch.multinomial(probs.reshape(-1, logits.shape[-1]), 1, True).T.reshape(
-            logits.shape[:-1])
+        actions = _draw(probs)
     log_prob = logits.gather(-1, actions.long().unsqueeze(-1)).squeeze(-1)
     clamped = torch.clamp(logits, min=torch.finfo(logits.dtype).min)
     if probs is None:
