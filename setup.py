@@ -1,4 +1,5 @@
-"""Build the compiled Sequitur core; all other metadata lives in pyproject.toml."""
+"""Build the compiled cores (Sequitur, MinAtar Breakout); all other metadata lives in
+pyproject.toml."""
 
 from setuptools import Extension, setup
 
@@ -9,6 +10,12 @@ setup(
             ["routine_gym/_sequitur.cpp"],
             extra_compile_args=["-O2", "-std=c++17"],
             language="c++",
-        )
+        ),
+        Extension(
+            "routine_gym._minatar_core",
+            ["routine_gym/_minatar_core.cpp"],
+            extra_compile_args=["-O2", "-std=c++17"],
+            language="c++",
+        ),
     ]
 )

@@ -400,8 +400,7 @@ def main(args: Args) -> None:
             done = term | trunc
             terminated[step], truncated[step] = term, trunc
 
-            if args.mode == "a2c":
-                lengths[step] = 1
+            if args.mode == "a2c":  # lengths: all 1 (as allocated)
                 step_rewards[step, 0] = reward
             else:
                 lengths[step] = merge_final(info, "routine_length", done)
@@ -417,10 +416,8 @@ def main(args: Args) -> None:
                     v = agent.get_value(torch.as_tensor(final_obs, device=device))
                 final_values[step, trunc] = v.cpu().numpy()
 
-            global_step += int(lengths[step].sum())
+            global_step += e if args.mode == "a2c" else int(lengths[step].sum())
             decisions += e
-            routine_counts += np.bincount(action, minlength=num_actions)
-            counts.add(action, lengths[step].sum())
             if done.any() and "episode" in info.get("final_info", {}):
                 final = info["final_info"]
                 for i in np.flatnonzero(final["_episode"]):
@@ -428,6 +425,10 @@ def main(args: Args) -> None:
                     recent_returns.append(ret)
                     writer.add_scalar("charts/episodic_return", ret, global_step)
                     writer.add_scalar("charts/episodic_length", length, global_step)
+
+        chosen = np.bincount(actions.reshape(-1), minlength=num_actions)  # the rollout's choices
+        routine_counts += chosen
+        counts.add_counts(chosen, int(lengths.sum()))
 
         # Returns. RAPL: discounted routine reward and γ^ℓ; MacroAction and A2C: summed reward
         # and one γ per decision (identical for A2C, whose routines all have length 1).

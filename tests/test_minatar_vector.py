@@ -21,12 +21,20 @@ def _flat(info: dict, prefix: str = "") -> dict:
     return out
 
 
-def _assert_same_steps(env_id, routines, record, env_kwargs, steps, num_envs=6, seed=3):
-    batched = make_vector_env(env_id, num_envs, routines=routines, record_observations=record,
-                              env_kwargs=env_kwargs)
+def _assert_same_steps(env_id, routines, record, env_kwargs, steps, num_envs=6, seed=3,
+                       compiled=None):
+    if compiled is None:  # what the scripts get: the factory's choice
+        batched = make_vector_env(env_id, num_envs, routines=routines,
+                                  record_observations=record, env_kwargs=env_kwargs)
+    else:
+        batched = MinAtarVectorEnv(env_id, num_envs, routines=routines,
+                                   record_observations=record, env_kwargs=env_kwargs,
+                                   compiled=compiled)
     python = make_vector_env(env_id, num_envs, routines=routines, record_observations=record,
                              env_kwargs=env_kwargs, batched=False)
     assert isinstance(batched, MinAtarVectorEnv)
+    # Breakout runs in the compiled core unless told otherwise; the other games in Python.
+    assert batched.compiled == (compiled is not False and env_id == "MinAtar/Breakout-v1")
     assert isinstance(python, gym.vector.SyncVectorEnv)
     assert batched.single_observation_space == python.single_observation_space
     assert batched.single_action_space == python.single_action_space
@@ -74,6 +82,103 @@ def test_the_batched_env_returns_what_the_python_path_returns(env_id, routines, 
     assert ends > 0  # episode ends (autoreset, final_obs, final_info) were compared
     if env_kwargs.get("max_episode_steps"):
         assert truncations > 0  # and so were truncations
+
+
+@pytest.mark.parametrize("routines,record,env_kwargs,compiled", [
+    (None, False, {}, False),  # Breakout's Python loop, kept for compiled=False
+    ([[1, 1, 2], [0, 0, 0, 0]], True, {"max_episode_steps": 25}, False),
+    ([[2, 2, 2, 2], [1, 0]], False, {"sticky_action_prob": 0.5, "max_episode_steps": 30}, True),
+    ([[1]], True, {"sticky_action_prob": 1.0}, True),  # every action sticks: the first is NOOP
+    (None, False, {"sticky_action_prob": 0.0}, True),
+])
+def test_breakout_compiled_or_not_returns_what_the_python_path_returns(routines, record,
+                                                                      env_kwargs, compiled):
+    ends, truncations = _assert_same_steps("MinAtar/Breakout-v1", routines, record, env_kwargs,
+                                           300, compiled=compiled)
+    assert ends > 0
+    if env_kwargs.get("max_episode_steps"):
+        assert truncations > 0
+
+
+def _breakout_pair(num_envs, sticky):
+    kwargs = {"sticky_action_prob": sticky}
+    pair = [MinAtarVectorEnv("MinAtar/Breakout-v1", num_envs, env_kwargs=kwargs, compiled=c)
+            for c in (True, False)]
+    for envs in pair:
+        envs.reset(seed=11)
+    return pair
+
+
+def _set_state(envs, i, state):
+    environment = envs._games[i]
+    game = environment.env
+    for key, value in state.items():
+        if key == "last_action":
+            environment.last_action = value
+        else:
+            setattr(game, key, value.copy() if key == "brick_map" else value)
+
+
+def _draw_state(rng):
+    """A Breakout state: the ball anywhere in rows 0-8 (half the time in row 8, over the
+    paddle's row), any direction, the paddle anywhere, bricks anywhere in rows 0-8 (the wall
+    cleared a third of the time)."""
+    bricks = np.zeros((10, 10))
+    if rng.random() > 1 / 3:
+        bricks[:9] = rng.random((9, 10)) < 0.3
+    ball_x, ball_y = int(rng.integers(10)), 8 if rng.random() < 0.5 else int(rng.integers(9))
+    bricks[ball_y, ball_x] = 0  # the ball is never inside a brick
+    return {"ball_x": ball_x, "ball_y": ball_y, "ball_dir": int(rng.integers(4)),
+            "pos": int(rng.integers(10)), "strike": bool(rng.integers(2)),
+            "last_x": int(rng.integers(10)), "last_y": int(rng.integers(10)),
+            "brick_map": bricks, "last_action": int(rng.choice([0, 1, 3]))}
+
+
+@pytest.mark.parametrize("sticky", [0.0, 0.3])
+def test_the_compiled_core_steps_any_breakout_state_as_minatar_does(sticky):
+    # From states drawn anywhere (walls, corners, bricks above, beside and below the ball, a
+    # cleared wall refilled when the ball reaches the paddle's row, a strike in progress), one
+    # step of each action in the compiled core against MinAtar's own `act` and `state`.
+    compiled, python = _breakout_pair(8, sticky)
+    rng = np.random.default_rng(0)
+    refills = ends = 0
+    for _ in range(300):
+        for i in range(8):
+            state = _draw_state(rng)
+            _set_state(compiled, i, state)
+            _set_state(python, i, state)
+        compiled._load_core()
+        actions = rng.integers(0, 3, 8)
+        cleared = [not python._games[i].env.brick_map.any() for i in range(8)]
+        out_c, out_p = compiled.step(actions), python.step(actions)
+        for b, p in zip(out_c[:4], out_p[:4], strict=True):
+            assert b.dtype == p.dtype and np.array_equal(b, p)
+        done = out_p[2] | out_p[3]
+        for i in np.flatnonzero(done):
+            assert np.array_equal(out_c[4]["final_obs"][i], out_p[4]["final_obs"][i])
+        for i in range(8):  # a cleared wall that was refilled has bricks again
+            after = out_p[4]["final_obs"][i] if done[i] else out_p[0][i]
+            refills += int(cleared[i] and after[3].any())
+        ends += int(done.sum())
+    assert refills > 10 and ends > 100  # both branches were compared, many times
+
+
+def test_the_compiled_core_shares_each_games_random_stream_with_python():
+    # The sticky draws and the reset's coin come from the game's own RandomState: after the
+    # same steps, the compiled games' generators are where the Python games' are.
+    compiled, python = _breakout_pair(4, 0.25)
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        actions = rng.integers(0, 3, 4)
+        compiled.step(actions)
+        python.step(actions)
+    for c, p in zip(compiled._games, python._games, strict=True):
+        assert c.random.rand() == p.random.rand()
+
+
+def test_compiled_true_is_refused_where_there_is_no_core():
+    with pytest.raises(ValueError, match="MinAtar/Seaquest-v1 has no compiled core"):
+        MinAtarVectorEnv("MinAtar/Seaquest-v1", 2, compiled=True)
 
 
 def test_a_routine_cut_by_the_time_limit_counts_its_executed_steps():

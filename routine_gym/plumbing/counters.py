@@ -90,6 +90,20 @@ class Counters:
                                      minlength=len(self._choices))
         self._steps += int(steps)
 
+    def add_counts(self, counts: np.ndarray, steps: int) -> None:
+        """Count decisions already counted per choice (`counts[c]`: how many chose `c`, e.g.
+        `np.bincount` of a rollout's actions) and the primitive steps they ran: the same as
+        `add` with those choices.
+
+        Example:
+            >>> counts = Counters(None, num_primitives=2, num_extended=1)
+            >>> counts.add_counts(np.bincount([0, 2, 2, 1], minlength=3), steps=1 + 3 + 3 + 1)
+            >>> counts.window()
+            {'steps_per_decision': 2.0, 'primitive_share': 0.5, 'shares': [0.5]}
+        """
+        self._choices += counts
+        self._steps += int(steps)
+
     def add_steps(self, steps: int) -> None:
         """Count primitive steps that ran with no new decision (an option that went on)."""
         self._steps += int(steps)

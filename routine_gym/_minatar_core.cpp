@@ -1,0 +1,322 @@
+// Compiled core of routine_gym.envs.minatar_vector for MinAtar's Breakout: all games of a vector
+// env stepped in one call, each through the primitive action or routine it was given.
+//
+// MinAtar's Breakout (minatar/environments/breakout.py, Young & Tian 2019) is a few integer
+// updates per step; in Python each step of one game costs ~2 µs (the sticky-action draw, the
+// game's `act`, its boolean `state()` frame and the copy into the batch), which on a 16-game
+// vector env is a tenth of an A2C run. This file is the same game, line for line:
+//
+//   - `breakout_act` is `Env.act` (the paddle, the ball's diagonal move, its reflections off the
+//     walls, the bricks and the paddle, the brick refill when the wall is cleared, the end when
+//     the ball passes the paddle);
+//   - the sticky action is `Environment.act`'s: one uniform draw per primitive step from the
+//     game's own `np.random.RandomState`, through numpy's `bitgen_t` (the same `next_double` that
+//     `RandomState.rand()` calls, so the game's random stream is shared with Python, draw for
+//     draw); the reset's `RandomState.randint(2)` is `next_uint32() & 1`, as numpy computes a
+//     masked bounded integer of range 1;
+//   - `write_state` is `Env.state()` written straight into the agent's channels-first float32
+//     view (paddle, ball, trail, bricks).
+//
+// `tests/test_minatar_vector.py` compares every output with the Python path on fixed seeds and
+// actions, and single steps from arbitrary game states (the brick refill included).
+//
+// Python checks every argument (shapes, dtypes, contiguity, actions in range); this file checks
+// buffer sizes again so that a wrong call is an error, never a write outside an array.
+
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+
+#include <cstdint>
+#include <cstring>
+
+namespace {
+
+// numpy/random/bitgen.h: the bit generator interface behind `RandomState._bit_generator`.
+struct BitGen {
+  void* state;
+  uint64_t (*next_uint64)(void* st);
+  uint32_t (*next_uint32)(void* st);
+  double (*next_double)(void* st);
+  uint64_t (*next_raw)(void* st);
+};
+
+// One game's variables, in the order of a row of the int32 `core` array.
+enum Field { kBallX, kBallY, kBallDir, kPos, kStrike, kLastX, kLastY, kLastAction, kFields };
+constexpr int kSize = 10;                       // the 10×10 board
+constexpr int kCells = kSize * kSize;
+constexpr int kChannels = 4;                    // paddle, ball, trail, brick
+constexpr int kFrame = kChannels * kCells;      // floats per observation
+constexpr int kLeft = 1, kRight = 3;            // MinAtar's action_map: n l u r d f
+
+constexpr int kBounceX[4] = {1, 0, 3, 2};       // off a side wall
+constexpr int kBounceY[4] = {3, 2, 1, 0};       // off the top, a brick or the paddle's middle
+constexpr int kBouncePaddle[4] = {2, 3, 0, 1};  // off the paddle's edge
+
+// `Env.act(a)`: returns the reward; sets `*terminal` when the ball passed the paddle.
+int breakout_act(int32_t* g, uint8_t* bricks, int64_t a, bool* terminal) {
+  int reward = 0;
+  if (a == kLeft) {
+    g[kPos] = g[kPos] > 0 ? g[kPos] - 1 : 0;
+  } else if (a == kRight) {
+    g[kPos] = g[kPos] < 9 ? g[kPos] + 1 : 9;
+  }
+  g[kLastX] = g[kBallX];
+  g[kLastY] = g[kBallY];
+  int dir = g[kBallDir];
+  int new_x = g[kBallX] + ((dir == 0 || dir == 3) ? -1 : 1);
+  int new_y = g[kBallY] + ((dir == 0 || dir == 1) ? -1 : 1);
+
+  bool strike_toggle = false;
+  if (new_x < 0 || new_x > 9) {
+    new_x = new_x < 0 ? 0 : 9;
+    dir = kBounceX[dir];
+  }
+  if (new_y < 0) {
+    new_y = 0;
+    dir = kBounceY[dir];
+  } else if (bricks[new_y * kSize + new_x] == 1) {
+    strike_toggle = true;
+    if (!g[kStrike]) {
+      reward += 1;
+      g[kStrike] = 1;
+      bricks[new_y * kSize + new_x] = 0;
+      new_y = g[kLastY];
+      dir = kBounceY[dir];
+    }
+  } else if (new_y == 9) {
+    bool cleared = true;
+    for (int c = 0; c < kCells; ++c) {
+      if (bricks[c] != 0) {
+        cleared = false;
+        break;
+      }
+    }
+    if (cleared) {
+      for (int c = kSize; c < 4 * kSize; ++c) bricks[c] = 1;  // rows 1..3
+    }
+    if (g[kBallX] == g[kPos]) {
+      dir = kBounceY[dir];
+      new_y = g[kLastY];
+    } else if (new_x == g[kPos]) {
+      dir = kBouncePaddle[dir];
+      new_y = g[kLastY];
+    } else {
+      *terminal = true;
+    }
+  }
+  if (!strike_toggle) g[kStrike] = 0;
+  g[kBallDir] = dir;
+  g[kBallX] = new_x;
+  g[kBallY] = new_y;
+  return reward;
+}
+
+// `Env.reset()` after `Environment.last_action = 0` (what `MinAtarEnv.reset()` does).
+void breakout_reset(int32_t* g, uint8_t* bricks, BitGen* rng) {
+  const bool right = (rng->next_uint32(rng->state) & 1u) != 0;  // RandomState.randint(2)
+  g[kBallY] = 3;
+  g[kBallX] = right ? 9 : 0;
+  g[kBallDir] = right ? 3 : 2;
+  g[kPos] = 4;
+  std::memset(bricks, 0, kCells);
+  std::memset(bricks + kSize, 1, 3 * kSize);
+  g[kStrike] = 0;
+  g[kLastX] = g[kBallX];
+  g[kLastY] = g[kBallY];
+  g[kLastAction] = 0;
+}
+
+// `Env.state()` as the agent's (channel, row, column) float32 frame.
+void write_state(const int32_t* g, const uint8_t* bricks, float* out) {
+  std::memset(out, 0, sizeof(float) * kFrame);
+  out[0 * kCells + 9 * kSize + g[kPos]] = 1.0f;
+  out[1 * kCells + g[kBallY] * kSize + g[kBallX]] = 1.0f;
+  out[2 * kCells + g[kLastY] * kSize + g[kLastX]] = 1.0f;
+  float* brick_channel = out + 3 * kCells;
+  for (int c = 0; c < kCells; ++c) brick_channel[c] = bricks[c] ? 1.0f : 0.0f;
+}
+
+// Holds the Py_buffers of one call and releases them on every way out.
+struct Buffers {
+  static constexpr int kMax = 16;
+  Py_buffer views[kMax];
+  int count = 0;
+  ~Buffers() {
+    for (int i = 0; i < count; ++i) PyBuffer_Release(&views[i]);
+  }
+  // A C-contiguous buffer of `obj` holding exactly `bytes` bytes; nullptr (with a Python error
+  // set) otherwise. `optional`: None gives nullptr with no error.
+  void* get(PyObject* obj, Py_ssize_t bytes, bool writable, const char* name,
+            bool optional = false) {
+    if (optional && obj == Py_None) return nullptr;
+    Py_buffer* view = &views[count];
+    int flags = PyBUF_C_CONTIGUOUS | (writable ? PyBUF_WRITABLE : 0);
+    if (PyObject_GetBuffer(obj, view, flags) != 0) return nullptr;
+    ++count;
+    if (view->len != bytes) {
+      PyErr_Format(PyExc_ValueError, "%s holds %zd bytes, expected %zd", name, view->len, bytes);
+      return nullptr;
+    }
+    return view->buf;
+  }
+};
+
+const char kStepDoc[] =
+    "breakout_step(core, bricks, rngs, sticky, actions, sequences, sequence_lengths, elapsed,\n"
+    "              limit, rewards, terminated, truncated, executed, step_rewards,\n"
+    "              inner_states, states, final_states)\n\n"
+    "Step every game once: its primitive action or routine, stopping at the end of an episode\n"
+    "(terminated, or truncated at `limit` steps, -1 for none), resetting a game whose episode\n"
+    "ended. Arrays (C-contiguous, E games, A actions, L the longest sequence): core int32 (E, 8),\n"
+    "bricks uint8 (E, 10, 10), rngs uint64 (E,) bitgen_t addresses, actions int64 (E,),\n"
+    "sequences int64 (A, L), sequence_lengths int64 (A,), elapsed int64 (E,), rewards float64\n"
+    "(E,), terminated and truncated bool (E,), executed int64 (E,), step_rewards float64 (E, L)\n"
+    "or None, inner_states float32 (E, L, 4, 10, 10) or None, states and final_states float32\n"
+    "(E, 4, 10, 10).";
+
+PyObject* breakout_step(PyObject*, PyObject* args) {
+  PyObject *core_o, *bricks_o, *rngs_o, *actions_o, *sequences_o, *lengths_o, *elapsed_o;
+  PyObject *rewards_o, *terminated_o, *truncated_o, *executed_o, *step_rewards_o, *inner_o;
+  PyObject *states_o, *final_o;
+  double sticky;
+  long long limit;
+  if (!PyArg_ParseTuple(args, "OOOdOOOOLOOOOOOOO", &core_o, &bricks_o, &rngs_o, &sticky,
+                        &actions_o, &sequences_o, &lengths_o, &elapsed_o, &limit, &rewards_o,
+                        &terminated_o, &truncated_o, &executed_o, &step_rewards_o, &inner_o,
+                        &states_o, &final_o)) {
+    return nullptr;
+  }
+  Buffers b;
+  // The sizes that fix E, A and L.
+  if (PyObject_GetBuffer(actions_o, &b.views[b.count], PyBUF_C_CONTIGUOUS) != 0) return nullptr;
+  const Py_ssize_t e = b.views[b.count++].len / static_cast<Py_ssize_t>(sizeof(int64_t));
+  if (PyObject_GetBuffer(lengths_o, &b.views[b.count], PyBUF_C_CONTIGUOUS) != 0) return nullptr;
+  const Py_ssize_t num_actions = b.views[b.count++].len / static_cast<Py_ssize_t>(sizeof(int64_t));
+  if (PyObject_GetBuffer(sequences_o, &b.views[b.count], PyBUF_C_CONTIGUOUS) != 0) return nullptr;
+  const Py_ssize_t seq_bytes = b.views[b.count++].len;
+  if (num_actions == 0 || seq_bytes % (num_actions * static_cast<Py_ssize_t>(sizeof(int64_t)))) {
+    PyErr_SetString(PyExc_ValueError, "sequences must hold the same number of rows as "
+                                      "sequence_lengths");
+    return nullptr;
+  }
+  const Py_ssize_t max_len = seq_bytes / (num_actions * static_cast<Py_ssize_t>(sizeof(int64_t)));
+  const auto* actions = static_cast<const int64_t*>(b.views[0].buf);
+  const auto* seq_lengths = static_cast<const int64_t*>(b.views[1].buf);
+  const auto* sequences = static_cast<const int64_t*>(b.views[2].buf);
+
+  auto* core = static_cast<int32_t*>(b.get(core_o, e * kFields * 4, true, "core"));
+  if (!core) return nullptr;
+  auto* bricks = static_cast<uint8_t*>(b.get(bricks_o, e * kCells, true, "bricks"));
+  if (!bricks) return nullptr;
+  auto* rngs = static_cast<const uint64_t*>(b.get(rngs_o, e * 8, false, "rngs"));
+  if (!rngs) return nullptr;
+  auto* elapsed = static_cast<int64_t*>(b.get(elapsed_o, e * 8, true, "elapsed"));
+  if (!elapsed) return nullptr;
+  auto* rewards = static_cast<double*>(b.get(rewards_o, e * 8, true, "rewards"));
+  if (!rewards) return nullptr;
+  auto* terminated = static_cast<bool*>(b.get(terminated_o, e, true, "terminated"));
+  if (!terminated) return nullptr;
+  auto* truncated = static_cast<bool*>(b.get(truncated_o, e, true, "truncated"));
+  if (!truncated) return nullptr;
+  auto* executed = static_cast<int64_t*>(b.get(executed_o, e * 8, true, "executed"));
+  if (!executed) return nullptr;
+  auto* step_rewards = static_cast<double*>(
+      b.get(step_rewards_o, e * max_len * 8, true, "step_rewards", true));
+  if (!step_rewards && PyErr_Occurred()) return nullptr;
+  auto* inner = static_cast<float*>(
+      b.get(inner_o, e * max_len * kFrame * 4, true, "inner_states", true));
+  if (!inner && PyErr_Occurred()) return nullptr;
+  auto* states = static_cast<float*>(b.get(states_o, e * kFrame * 4, true, "states"));
+  if (!states) return nullptr;
+  auto* final_states = static_cast<float*>(b.get(final_o, e * kFrame * 4, true,
+                                                  "final_states"));
+  if (!final_states) return nullptr;
+  for (Py_ssize_t i = 0; i < e; ++i) {
+    if (actions[i] < 0 || actions[i] >= num_actions) {
+      PyErr_Format(PyExc_ValueError, "action %lld is outside [0, %zd)",
+                   static_cast<long long>(actions[i]), num_actions);
+      return nullptr;
+    }
+    const int64_t length = seq_lengths[actions[i]];
+    if (length < 1 || length > max_len) {
+      PyErr_SetString(PyExc_ValueError, "a sequence length is outside [1, L]");
+      return nullptr;
+    }
+    if (rngs[i] == 0) {
+      PyErr_SetString(PyExc_ValueError, "a game has no random number generator");
+      return nullptr;
+    }
+  }
+
+  for (Py_ssize_t i = 0; i < e; ++i) {
+    int32_t* g = core + i * kFields;
+    uint8_t* board = bricks + i * kCells;
+    auto* rng = reinterpret_cast<BitGen*>(static_cast<uintptr_t>(rngs[i]));
+    const int64_t a = actions[i];
+    const int64_t* sequence = sequences + a * max_len;
+    double total = 0.0;
+    bool term = false, trunc = false;
+    int64_t k = 0;
+    for (const int64_t length = seq_lengths[a]; k < length;) {
+      int64_t primitive = sequence[k];
+      if (rng->next_double(rng->state) < sticky) primitive = g[kLastAction];
+      g[kLastAction] = static_cast<int32_t>(primitive);
+      const double reward = breakout_act(g, board, primitive, &term);
+      elapsed[i] += 1;
+      trunc = limit >= 0 && elapsed[i] >= limit;
+      total += reward;
+      if (step_rewards) step_rewards[i * max_len + k] = reward;
+      if (inner) write_state(g, board, inner + (i * max_len + k) * kFrame);
+      ++k;
+      if (term || trunc) break;
+    }
+    rewards[i] = total;
+    terminated[i] = term;
+    truncated[i] = trunc;
+    executed[i] = k;
+    if (term || trunc) {
+      write_state(g, board, final_states + i * kFrame);
+      breakout_reset(g, board, rng);
+      elapsed[i] = 0;
+    }
+    write_state(g, board, states + i * kFrame);
+  }
+  Py_RETURN_NONE;
+}
+
+const char kStateDoc[] =
+    "breakout_states(core, bricks, states)\n\n"
+    "Write every game's observation (E, 4, 10, 10) float32 into `states`.";
+
+PyObject* breakout_states(PyObject*, PyObject* args) {
+  PyObject *core_o, *bricks_o, *states_o;
+  if (!PyArg_ParseTuple(args, "OOO", &core_o, &bricks_o, &states_o)) return nullptr;
+  Buffers b;
+  if (PyObject_GetBuffer(core_o, &b.views[b.count], PyBUF_C_CONTIGUOUS) != 0) return nullptr;
+  const Py_ssize_t e = b.views[b.count++].len / (kFields * 4);
+  const auto* core = static_cast<const int32_t*>(b.views[0].buf);
+  auto* bricks = static_cast<const uint8_t*>(b.get(bricks_o, e * kCells, false, "bricks"));
+  if (!bricks) return nullptr;
+  auto* states = static_cast<float*>(b.get(states_o, e * kFrame * 4, true, "states"));
+  if (!states) return nullptr;
+  for (Py_ssize_t i = 0; i < e; ++i) {
+    write_state(core + i * kFields, bricks + i * kCells, states + i * kFrame);
+  }
+  Py_RETURN_NONE;
+}
+
+PyMethodDef kMethods[] = {
+    {"breakout_step", breakout_step, METH_VARARGS, kStepDoc},
+    {"breakout_states", breakout_states, METH_VARARGS, kStateDoc},
+    {nullptr, nullptr, 0, nullptr},
+};
+
+PyModuleDef kModule = {
+    PyModuleDef_HEAD_INIT, "_minatar_core",
+    "Compiled MinAtar Breakout for routine_gym.envs.minatar_vector (see the source's header).",
+    -1, kMethods, nullptr, nullptr, nullptr, nullptr,
+};
+
+}  // namespace
+
+PyMODINIT_FUNC PyInit__minatar_core(void) { return PyModule_Create(&kModule); }
