@@ -1,0 +1,124 @@
+"""`ScalarWriter` and its `EventFile`: TensorBoard's event files, written in the training thread.
+
+TensorBoard's own reader checks both CRCs of every record, so reading a file back checks the
+framing too; the compiled framing is also compared byte for byte with TensorBoard's Python one.
+"""
+
+from __future__ import annotations
+
+import struct
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+from tensorboard.compat.tensorflow_stub.pywrap_tensorflow import masked_crc32c
+
+from routine_gym import _records
+from routine_gym.plumbing import scalars
+from routine_gym.plumbing.scalars import EventFile, ScalarWriter
+
+
+def test_crc32c_of_the_standard_check_string():
+    # CRC-32C("123456789") = 0xE3069283 (the Castagnoli check value); masked as TensorFlow
+    # masks it: rotate right 15 bits, add 0xA282EAD8.
+    crc = 0xE3069283
+    masked = (((crc >> 15) | (crc << 17)) + 0xA282EAD8) & 0xFFFFFFFF
+    assert _records.masked_crc32c(b"123456789") == masked == masked_crc32c(b"123456789")
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.binary(max_size=2000))
+def test_the_compiled_framing_is_tensorboards(data):
+    assert _records.masked_crc32c(data) == masked_crc32c(data)
+    assert _records.frame(data) == scalars._python_frame(data)  # the fallback's framing
+    header = struct.pack("<Q", len(data))  # and TensorBoard's RecordWriter's, written out
+    assert _records.frame(data) == (header + struct.pack("<I", masked_crc32c(header)) + data
+                                    + struct.pack("<I", masked_crc32c(data)))
+
+
+def _scalars(folder: Path) -> dict[str, list[tuple[int, float]]]:
+    files = sorted(folder.glob("events.out.tfevents.*"))
+    out: dict[str, list[tuple[int, float]]] = {}
+    for f in files:
+        events = EventAccumulator(str(f), size_guidance={"scalars": 0})
+        events.Reload()
+        for tag in events.Tags()["scalars"]:
+            out.setdefault(tag, []).extend((e.step, e.value) for e in events.Scalars(tag))
+    return out
+
+
+def test_tensorboard_reads_back_scalars_histograms_and_text(tmp_path):
+    writer = ScalarWriter(str(tmp_path))
+    for step in range(1, 301):  # 300 steps: episodes at their own steps, losses grouped
+        writer.add_scalar("charts/episodic_return", step * 0.5, step)
+        writer.add_scalar("losses/value_loss", 1.0 / step, step)
+    writer.add_histogram("weights", np.arange(10.0), 300)
+    writer.add_text("notes", "hello", 300)
+    writer.close()
+    files = list(tmp_path.glob("events.out.tfevents.*"))
+    assert len(files) == 1
+    events = EventAccumulator(str(files[0]), size_guidance={"scalars": 0})
+    events.Reload()
+    returns = [(e.step, e.value) for e in events.Scalars("charts/episodic_return")]
+    assert returns == [(s, s * 0.5) for s in range(1, 301)]
+    losses = [e.value for e in events.Scalars("losses/value_loss")]
+    assert losses == [float(np.float32(1.0 / s)) for s in range(1, 301)]
+    assert events.Histograms("weights")[0].histogram_value.num == 10
+    assert events.Tags()["tensors"] == ["notes/text_summary"]
+
+
+def test_events_wait_in_memory_until_flush_secs_flush_or_close(tmp_path):
+    writer = ScalarWriter(str(tmp_path), flush_secs=3600)
+    writer.add_scalar("a", 1.0, 1)
+    writer.add_scalar("a", 2.0, 2)  # step 1's event is made now, kept in memory
+    assert _scalars(tmp_path) == {}
+    writer.flush()  # step 2's event too
+    assert _scalars(tmp_path) == {"a": [(1, 1.0), (2, 2.0)]}
+    writer.add_scalar("a", 3.0, 3)
+    writer.close()
+    assert _scalars(tmp_path) == {"a": [(1, 1.0), (2, 2.0), (3, 3.0)]}
+
+
+def test_flush_secs_writes_events_as_they_come(tmp_path):
+    writer = ScalarWriter(str(tmp_path), flush_secs=0)
+    writer.add_scalar("a", 1.0, 1)
+    writer.add_scalar("a", 2.0, 2)  # step 1's event goes to the file at once
+    assert _scalars(tmp_path) == {"a": [(1, 1.0)]}
+    writer.close()
+
+
+def test_a_megabyte_pending_is_written_before_flush_secs(tmp_path, monkeypatch):
+    monkeypatch.setattr(scalars, "_MAX_PENDING", 200)
+    writer = ScalarWriter(str(tmp_path), flush_secs=3600)
+    for step in range(1, 11):
+        writer.add_scalar("a", float(step), step)
+    on_disk = _scalars(tmp_path)["a"]
+    assert 0 < len(on_disk) < 9  # some went out before any flush
+    writer.close()
+
+
+def test_a_closed_event_file_refuses_events_and_reopens_into_a_new_file(tmp_path):
+    events = EventFile(str(tmp_path))
+    events.close()
+    with pytest.raises(OSError, match="is closed"):
+        from tensorboard.compat.proto.event_pb2 import Event
+        events.add_event(Event(step=1))
+    time.sleep(0.01)
+    events.reopen()
+    events.close()
+    assert len(list(tmp_path.glob("events.out.tfevents.*"))) == 2
+
+
+def test_a_writer_closed_and_used_again_goes_on_in_a_new_file(tmp_path):
+    # As SummaryWriter does: after close(), the next scalar makes a new file writer.
+    writer = ScalarWriter(str(tmp_path))
+    writer.add_scalar("a", 1.0, 1)
+    writer.close()
+    writer.add_scalar("a", 2.0, 2)
+    writer.close()
+    assert len(list(tmp_path.glob("events.out.tfevents.*"))) == 2
+    assert _scalars(tmp_path) == {"a": [(1, 1.0), (2, 2.0)]}
