@@ -157,6 +157,8 @@ class MinAtarVectorEnv(VectorEnv):
             self._elapsed: Any = np.zeros(num_envs, dtype=np.int64)
             self._returns: Any = np.zeros(num_envs, dtype=np.float64)
             self._lengths: Any = np.zeros(num_envs, dtype=np.int64)
+            self._executed_scratch = np.zeros(num_envs, dtype=np.int64)
+            self._final_scratch = np.zeros((num_envs, c, h, w), dtype=np.float32)
         else:
             self._elapsed = [0] * num_envs
             self._returns = [0.0] * num_envs
@@ -311,11 +313,12 @@ class MinAtarVectorEnv(VectorEnv):
         view = self.single_observation_space.shape
         rewards = np.empty(e, dtype=np.float64)
         terminated, truncated = np.empty(e, dtype=bool), np.empty(e, dtype=bool)
-        executed = np.empty(e, dtype=np.int64)
+        # Returned as `routine_length` with routines (a new array), else only counted.
+        executed = np.empty(e, dtype=np.int64) if routines else self._executed_scratch
         step_rewards = np.zeros((e, length), dtype=np.float64) if routines else None
         inner = np.zeros((e, length, *view), dtype=np.float32) if record else None
         states = np.empty((e, *view), dtype=np.float32)
-        final_states = np.empty((e, *view), dtype=np.float32)
+        final_states = self._final_scratch  # the ended games' rows are copied out below
         _minatar_core.breakout_step(
             self._core, self._bricks, self._rngs, self._sticky,
             np.ascontiguousarray(actions, dtype=np.int64), self._core_sequences,
