@@ -457,10 +457,8 @@ def main(args: Args) -> None:
                     v = agent.get_value(torch.as_tensor(final_obs, device=device))
                 final_values[step, trunc] = v.cpu().numpy()
 
-            global_step += int(lengths[step].sum())
+            global_step += e if args.mode == "ppo" else int(lengths[step].sum())
             decisions += e
-            routine_counts += np.bincount(action, minlength=num_actions)
-            counts.add(action, lengths[step].sum())
             if done.any() and "episode" in info.get("final_info", {}):
                 final = info["final_info"]
                 for i in np.flatnonzero(final["_episode"]):
@@ -468,6 +466,10 @@ def main(args: Args) -> None:
                     recent_returns.append(ret)
                     writer.add_scalar("charts/episodic_return", ret, global_step)
                     writer.add_scalar("charts/episodic_length", length, global_step)
+
+        chosen = np.bincount(actions.reshape(-1), minlength=num_actions)  # the rollout's choices
+        routine_counts += chosen
+        counts.add_counts(chosen, int(lengths.sum()))
 
         # Advantages. RAPL: discounted routine reward, γ^ℓ and a trace decay of λ^ℓ; PPO and
         # MacroAction: summed reward, one γ and one λ per decision (PPO's routines: length 1).
