@@ -220,3 +220,37 @@ def test_bad_input_gets_a_one_line_error():
         MinAtarVectorEnv("MinAtar/Breakout-v1", 2, routines=[[7]])
     with pytest.raises(ValueError, match="runs MinAtar's games, not 'CartPole-v1'"):
         MinAtarVectorEnv("CartPole-v1", 2)
+
+
+def test_a_copy_of_the_compiled_env_draws_from_its_own_games_generators():
+    # The core reaches each game's RandomState by address: a copy (deepcopy, pickle) must use
+    # its own games' generators, so the copy and the original go on identically and apart.
+    import copy
+    import pickle
+
+    envs = MinAtarVectorEnv("MinAtar/Breakout-v1", 3, env_kwargs={"sticky_action_prob": 0.5})
+    envs.reset(seed=2)
+    twins = [copy.deepcopy(envs), pickle.loads(pickle.dumps(envs))]
+    for twin in twins:
+        assert twin.compiled
+        assert not set(twin._rngs.tolist()) & set(envs._rngs.tolist())
+    rng = np.random.default_rng(0)
+    for _ in range(100):
+        actions = rng.integers(0, 3, 3)
+        outs = [e.step(actions)[:4] for e in (envs, *twins)]
+        for out in outs[1:]:
+            for a, b in zip(outs[0], out, strict=True):
+                assert np.array_equal(a, b)
+
+
+def test_the_compiled_env_steps_before_any_reset_as_the_python_loop_does():
+    compiled, python = (MinAtarVectorEnv("MinAtar/Breakout-v1", 2, compiled=c)
+                        for c in (True, False))
+    for i, (game_c, game_p) in enumerate(zip(compiled._games, python._games, strict=True)):
+        # MinAtar started each game from its own unseeded generator: make the two the same.
+        game_p.random.set_state(game_c.random.get_state())
+        _set_state(python, i, {key: getattr(game_c.env, key) for key in (
+            "ball_x", "ball_y", "ball_dir", "pos", "strike", "last_x", "last_y", "brick_map")})
+    out_c, out_p = compiled.step(np.array([1, 2])), python.step(np.array([1, 2]))
+    for a, b in zip(out_c[:4], out_p[:4], strict=True):
+        assert np.array_equal(a, b)

@@ -159,6 +159,7 @@ class MinAtarVectorEnv(VectorEnv):
             self._lengths: Any = np.zeros(num_envs, dtype=np.int64)
             self._executed_scratch = np.zeros(num_envs, dtype=np.int64)
             self._final_scratch = np.zeros((num_envs, c, h, w), dtype=np.float32)
+            self._load_core()  # the games as MinAtar built them, as the Python loop finds them
         else:
             self._elapsed = [0] * num_envs
             self._returns = [0.0] * num_envs
@@ -205,6 +206,19 @@ class MinAtarVectorEnv(VectorEnv):
         self._rng_owners = [environment.random for environment in self._games]
         self._rngs[:] = [rng._bit_generator.ctypes.bit_generator.value
                          for rng in self._rng_owners]
+
+    def __getstate__(self) -> dict[str, Any]:
+        """What `copy` and `pickle` keep: all but the compiled core's generator addresses, which
+        belong to this process's objects (`__setstate__` takes them from the copied games)."""
+        state = self.__dict__.copy()
+        state.pop("_rngs", None)
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        if self.compiled:
+            self._rngs = np.array([rng._bit_generator.ctypes.bit_generator.value
+                                   for rng in self._rng_owners], dtype=np.uint64)
 
     def _start_episode(self, i: int) -> None:
         self._elapsed[i] = 0
