@@ -284,30 +284,8 @@ PyObject* breakout_step(PyObject*, PyObject* args) {
   Py_RETURN_NONE;
 }
 
-const char kStateDoc[] =
-    "breakout_states(core, bricks, states)\n\n"
-    "Write every game's observation (E, 4, 10, 10) float32 into `states`.";
-
-PyObject* breakout_states(PyObject*, PyObject* args) {
-  PyObject *core_o, *bricks_o, *states_o;
-  if (!PyArg_ParseTuple(args, "OOO", &core_o, &bricks_o, &states_o)) return nullptr;
-  Buffers b;
-  if (PyObject_GetBuffer(core_o, &b.views[b.count], PyBUF_C_CONTIGUOUS) != 0) return nullptr;
-  const Py_ssize_t e = b.views[b.count++].len / (kFields * 4);
-  const auto* core = static_cast<const int32_t*>(b.views[0].buf);
-  auto* bricks = static_cast<const uint8_t*>(b.get(bricks_o, e * kCells, false, "bricks"));
-  if (!bricks) return nullptr;
-  auto* states = static_cast<float*>(b.get(states_o, e * kFrame * 4, true, "states"));
-  if (!states) return nullptr;
-  for (Py_ssize_t i = 0; i < e; ++i) {
-    write_state(core + i * kFields, bricks + i * kCells, states + i * kFrame);
-  }
-  Py_RETURN_NONE;
-}
-
 PyMethodDef kMethods[] = {
     {"breakout_step", breakout_step, METH_VARARGS, kStepDoc},
-    {"breakout_states", breakout_states, METH_VARARGS, kStateDoc},
     {nullptr, nullptr, 0, nullptr},
 };
 
