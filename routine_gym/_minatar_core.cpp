@@ -28,6 +28,7 @@
 
 #include <cstdint>
 #include <cstring>
+#include <initializer_list>
 
 namespace {
 
@@ -52,7 +53,20 @@ constexpr int kBounceX[4] = {1, 0, 3, 2};       // off a side wall
 constexpr int kBounceY[4] = {3, 2, 1, 0};       // off the top, a brick or the paddle's middle
 constexpr int kBouncePaddle[4] = {2, 3, 0, 1};  // off the paddle's edge
 
-// `Env.act(a)`: returns the reward; sets `*terminal` when the ball passed the paddle.
+// Whether a game's variables are a state `Env.act` can step from: every position on the board,
+// a direction, a strike flag and a last action of MinAtar's six (a game edited by hand could
+// hold anything; stepping it would read and write outside the board).
+bool valid_state(const int32_t* g) {
+  for (int f : {kBallX, kBallY, kPos, kLastX, kLastY}) {
+    if (g[f] < 0 || g[f] > 9) return false;
+  }
+  return g[kBallDir] >= 0 && g[kBallDir] <= 3 && (g[kStrike] == 0 || g[kStrike] == 1) &&
+         g[kLastAction] >= 0 && g[kLastAction] <= 5;
+}
+
+// `Env.act(a)`: returns the reward, or -1 where MinAtar's `act` raises IndexError (a ball in
+// the bottom row moving down, which no game played from a reset reaches); sets `*terminal`
+// when the ball passed the paddle.
 int breakout_act(int32_t* g, uint8_t* bricks, int64_t a, bool* terminal) {
   int reward = 0;
   if (a == kLeft) {
@@ -66,6 +80,7 @@ int breakout_act(int32_t* g, uint8_t* bricks, int64_t a, bool* terminal) {
   int new_x = g[kBallX] + ((dir == 0 || dir == 3) ? -1 : 1);
   int new_y = g[kBallY] + ((dir == 0 || dir == 1) ? -1 : 1);
 
+  if (new_y > 9) return -1;
   bool strike_toggle = false;
   if (new_x < 0 || new_x > 9) {
     new_x = new_x < 0 ? 0 : 9;
@@ -246,6 +261,17 @@ PyObject* breakout_step(PyObject*, PyObject* args) {
       PyErr_SetString(PyExc_ValueError, "a game has no random number generator");
       return nullptr;
     }
+    if (!valid_state(core + i * kFields)) {
+      PyErr_Format(PyExc_ValueError, "game %zd is not a Breakout state (a position off the "
+                   "10x10 board, a direction outside 0-3 or an action outside 0-5)", i);
+      return nullptr;
+    }
+  }
+  for (Py_ssize_t k = 0; k < max_len * num_actions; ++k) {
+    if (sequences[k] < -1 || sequences[k] > 5) {
+      PyErr_SetString(PyExc_ValueError, "a routine holds an action outside MinAtar's 0-5");
+      return nullptr;
+    }
   }
 
   for (Py_ssize_t i = 0; i < e; ++i) {
@@ -261,7 +287,12 @@ PyObject* breakout_step(PyObject*, PyObject* args) {
       int64_t primitive = sequence[k];
       if (rng->next_double(rng->state) < sticky) primitive = g[kLastAction];
       g[kLastAction] = static_cast<int32_t>(primitive);
-      const double reward = breakout_act(g, board, primitive, &term);
+      const int reward = breakout_act(g, board, primitive, &term);
+      if (reward < 0) {
+        PyErr_Format(PyExc_ValueError, "game %zd: the ball left the board at the bottom "
+                     "without ending the episode (a state no reset leads to)", i);
+        return nullptr;
+      }
       elapsed[i] += 1;
       trunc = limit >= 0 && elapsed[i] >= limit;
       total += reward;

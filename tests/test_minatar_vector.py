@@ -216,6 +216,8 @@ def test_bad_input_gets_a_one_line_error():
         envs.step(np.array([0, 4]))
     with pytest.raises(ValueError, match="needs 2 actions"):
         envs.step(np.array([0, 1, 2]))
+    with pytest.raises(ValueError, match="actions must be integers, got an array of float64"):
+        envs.step(np.array([1.9, 0.0]))
     with pytest.raises(ValueError, match="outside the env's primitive actions"):
         MinAtarVectorEnv("MinAtar/Breakout-v1", 2, routines=[[7]])
     with pytest.raises(ValueError, match="runs MinAtar's games, not 'CartPole-v1'"):
@@ -254,3 +256,25 @@ def test_the_compiled_env_steps_before_any_reset_as_the_python_loop_does():
     out_c, out_p = compiled.step(np.array([1, 2])), python.step(np.array([1, 2]))
     for a, b in zip(out_c[:4], out_p[:4], strict=True):
         assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("field,value", [("ball_y", 10), ("ball_x", -1), ("pos", 12),
+                                         ("ball_dir", 4), ("last_action", 9)])
+def test_the_compiled_core_refuses_a_state_off_the_board(field, value):
+    envs = MinAtarVectorEnv("MinAtar/Breakout-v1", 2, compiled=True)
+    envs.reset(seed=0)
+    _set_state(envs, 1, {field: value})
+    envs._load_core()
+    with pytest.raises(ValueError, match="game 1 is not a Breakout state"):
+        envs.step(np.array([0, 0]))
+
+
+def test_the_compiled_core_refuses_a_ball_falling_out_of_the_board():
+    # MinAtar's own `act` raises IndexError from such a state; the core says what happened.
+    envs = MinAtarVectorEnv("MinAtar/Breakout-v1", 1, env_kwargs={"sticky_action_prob": 0.0},
+                            compiled=True)
+    envs.reset(seed=0)
+    _set_state(envs, 0, {"ball_y": 9, "ball_dir": 2, "pos": 0, "ball_x": 5})
+    envs._load_core()
+    with pytest.raises(ValueError, match="the ball left the board at the bottom"):
+        envs.step(np.array([0]))

@@ -6,7 +6,9 @@ framing too; the compiled framing is also compared byte for byte with TensorBoar
 
 from __future__ import annotations
 
-import struct
+import subprocess
+import sys
+import threading
 import time
 from pathlib import Path
 
@@ -35,9 +37,6 @@ def test_crc32c_of_the_standard_check_string():
 def test_the_compiled_framing_is_tensorboards(data):
     assert _records.masked_crc32c(data) == masked_crc32c(data)
     assert _records.frame(data) == scalars._python_frame(data)  # the fallback's framing
-    header = struct.pack("<Q", len(data))  # and TensorBoard's RecordWriter's, written out
-    assert _records.frame(data) == (header + struct.pack("<I", masked_crc32c(header)) + data
-                                    + struct.pack("<I", masked_crc32c(data)))
 
 
 def _scalars(folder: Path) -> dict[str, list[tuple[int, float]]]:
@@ -91,14 +90,66 @@ def test_flush_secs_writes_events_as_they_come(tmp_path):
     writer.close()
 
 
-def test_a_megabyte_pending_is_written_before_flush_secs(tmp_path, monkeypatch):
-    monkeypatch.setattr(scalars, "_MAX_PENDING", 200)
+def test_a_full_buffer_reaches_the_file_before_flush_secs(tmp_path):
     writer = ScalarWriter(str(tmp_path), flush_secs=3600)
-    for step in range(1, 11):
+    for step in range(1, 2001):  # ~60 bytes an event: far more than the file's 8 KiB buffer
         writer.add_scalar("a", float(step), step)
     on_disk = _scalars(tmp_path)["a"]
-    assert 0 < len(on_disk) < 9  # some went out before any flush
+    assert 0 < len(on_disk) < 1999  # some went out before any flush, not all
+    assert on_disk == [(s, float(s)) for s in range(1, len(on_disk) + 1)]
     writer.close()
+
+
+def test_a_run_ended_by_an_exception_keeps_its_scalars(tmp_path):
+    # No close(), no flush(): the process ends on an uncaught exception.
+    code = (
+        "import sys\n"
+        "from routine_gym.plumbing.scalars import ScalarWriter\n"
+        "w = ScalarWriter(sys.argv[1])\n"
+        "for step in range(1, 201):\n"
+        "    w.add_scalar('charts/episodic_return', step / 2, step)\n"
+        "    w.add_scalar('losses/value_loss', 1.0, step)\n"
+        "raise RuntimeError('boom')\n")
+    done = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True,
+                          text=True)
+    assert done.returncode == 1 and "RuntimeError: boom" in done.stderr
+    scalars_read = _scalars(tmp_path)
+    assert scalars_read["charts/episodic_return"] == [(s, s / 2) for s in range(1, 201)]
+    assert len(scalars_read["losses/value_loss"]) == 200
+
+
+def test_two_threads_share_an_event_file(tmp_path):
+    from tensorboard.compat.proto.event_pb2 import Event
+
+    events = EventFile(str(tmp_path), flush_secs=0)  # a flush after every event: the most races
+
+    def write(first):
+        for step in range(first, first + 3000):
+            events.add_event(Event(step=step, file_version="x"))
+
+    threads = [threading.Thread(target=write, args=(k * 10_000,)) for k in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    events.close()
+    path = next(tmp_path.glob("events.out.tfevents.*"))
+    from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
+
+    steps = sorted(e.step for e in EventFileLoader(str(path)).Load())
+    assert steps == [0] + list(range(3000)) + list(range(10_000, 13_000))
+
+
+def test_a_summary_writer_and_a_scalar_writer_in_one_folder_keep_their_own_files(tmp_path):
+    from torch.utils.tensorboard import SummaryWriter
+
+    theirs, ours = SummaryWriter(str(tmp_path)), ScalarWriter(str(tmp_path))
+    theirs.add_scalar("theirs", 1.0, 1)
+    ours.add_scalar("ours", 2.0, 2)
+    theirs.close()
+    ours.close()
+    assert len(list(tmp_path.glob("events.out.tfevents.*"))) == 2
+    assert _scalars(tmp_path) == {"theirs": [(1, 1.0)], "ours": [(2, 2.0)]}
 
 
 def test_a_closed_event_file_refuses_events_and_reopens_into_a_new_file(tmp_path):
@@ -121,4 +172,4 @@ def test_a_writer_closed_and_used_again_goes_on_in_a_new_file(tmp_path):
     writer.add_scalar("a", 2.0, 2)
     writer.close()
     assert len(list(tmp_path.glob("events.out.tfevents.*"))) == 2
-    assert _scalars(tmp_path) == {"a": [(1, 1.0), (2, 2.0)]}
+    assert sorted(_scalars(tmp_path)["a"]) == [(1, 1.0), (2, 2.0)]

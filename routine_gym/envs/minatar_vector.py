@@ -81,7 +81,9 @@ class MinAtarVectorEnv(VectorEnv):
         env_kwargs: `gym.make` keyword arguments (`sticky_action_prob`, `difficulty_ramping`,
             `max_episode_steps`).
         compiled: step the games in the compiled core (Breakout only): None uses it where the
-            game has one and it was built, True requires it, False keeps the Python loop.
+            game has one and it was built, True requires it, False keeps the Python loop. With
+            the core the games' state lives in it between resets: reseed and reset them through
+            this env's `reset`, not through `games[i]`.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}
@@ -145,7 +147,7 @@ class MinAtarVectorEnv(VectorEnv):
             self._core = np.zeros((num_envs, len(_CORE_FIELDS) + 1), dtype=np.int32)
             self._bricks = np.zeros((num_envs, h, w), dtype=np.uint8)
             self._rngs = np.zeros(num_envs, dtype=np.uint64)
-            self._rng_owners: list[np.random.RandomState] = []
+            self._rng_owners: list[np.random.BitGenerator] = []
             self._core_sequences = np.array(
                 [list(seq) + [-1] * (self.max_routine_length - len(seq))
                  for seq in self._sequences], dtype=np.int64)
@@ -203,9 +205,9 @@ class MinAtarVectorEnv(VectorEnv):
             self._core[i, : len(_CORE_FIELDS)] = [int(getattr(game, f)) for f in _CORE_FIELDS]
             self._core[i, len(_CORE_FIELDS)] = int(environment.last_action)
             self._bricks[i] = game.brick_map != 0
-        self._rng_owners = [environment.random for environment in self._games]
-        self._rngs[:] = [rng._bit_generator.ctypes.bit_generator.value
-                         for rng in self._rng_owners]
+        # The bit generators themselves (a RandomState can swap its own for a new one).
+        self._rng_owners = [environment.random._bit_generator for environment in self._games]
+        self._rngs[:] = [bits.ctypes.bit_generator.value for bits in self._rng_owners]
 
     def __getstate__(self) -> dict[str, Any]:
         """What `copy` and `pickle` keep: all but the compiled core's generator addresses, which
@@ -217,8 +219,8 @@ class MinAtarVectorEnv(VectorEnv):
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
         if self.compiled:
-            self._rngs = np.array([rng._bit_generator.ctypes.bit_generator.value
-                                   for rng in self._rng_owners], dtype=np.uint64)
+            self._rngs = np.array([bits.ctypes.bit_generator.value
+                                   for bits in self._rng_owners], dtype=np.uint64)
 
     def _start_episode(self, i: int) -> None:
         self._elapsed[i] = 0
@@ -231,6 +233,8 @@ class MinAtarVectorEnv(VectorEnv):
         actions = np.asarray(actions)
         if actions.shape != (e,):
             raise ValueError(f"step needs {e} actions, got an array of shape {actions.shape}")
+        if actions.dtype.kind not in "iu":
+            raise ValueError(f"actions must be integers, got an array of {actions.dtype}")
         chosen = actions.tolist()  # Python ints: a numpy element costs more than the game
         if min(chosen) < 0 or max(chosen) >= len(self._sequences):
             outside = next(a for a in chosen if not 0 <= a < len(self._sequences))

@@ -17,10 +17,11 @@ The events go to the file in the training loop's own thread (`EventFile`), not t
 TensorBoard's writer thread: that thread took every event from a queue and framed it with a
 CRC computed in Python, and each hand-over made the training thread wait for the GIL, 3-5 % of
 a MinAtar A2C run (a dozen events every few milliseconds). `EventFile` frames a record in C++
-(`routine_gym/_records.cpp`; TensorBoard's Python CRC where it is not built), keeps the records
-in memory and writes them every `flush_secs` (SummaryWriter's, 120 s by default), on `flush()`
-and `close()`, and when 1 MiB is pending. The file is the one TensorBoard's writer makes: same
-name pattern, same first event, same records.
+(`routine_gym/_records.cpp`; TensorBoard's Python CRC where it is not built) and writes it into
+the file's buffer, flushed every `flush_secs` (SummaryWriter's, 120 s by default, as
+TensorBoard's thread flushes), on `flush()` and `close()`, and at exit. The file is the one
+TensorBoard's writer makes: the same name pattern and counter, the same records, the same first
+event but for the writer's name in it.
 
 Example:
     >>> import tempfile
@@ -44,7 +45,9 @@ import itertools
 import os
 import socket
 import struct
+import threading
 import time
+import weakref
 from collections.abc import Callable
 from typing import Any
 
@@ -70,17 +73,26 @@ except ImportError:  # not built (a source checkout without `pip install`)
 
 __all__ = ["EventFile", "ScalarWriter"]
 
-#: Pending bytes that make `EventFile.add_event` write to the file before `flush_secs`.
-_MAX_PENDING = 1 << 20
-_file_numbers = itertools.count()  # the last part of an event file's name, as TensorBoard's
+try:  # TensorBoard's own file counter: no name shared with its writers in this process
+    from tensorboard.summary.writer.event_file_writer import _global_uid
+
+    def _file_number() -> int:
+        return _global_uid.get()
+except ImportError:  # pragma: no cover (a TensorBoard without it)
+    _file_number = itertools.count().__next__
 
 
 class EventFile:
     """TensorBoard's `EventFileWriter`, written in the caller's thread (see the module doc).
 
+    Each record goes into the file's buffer at once; the buffer reaches the file when it fills
+    (8 KiB), every `flush_secs`, on `flush()` and on `close()`, and a file still open when the
+    interpreter exits (a run ended by an exception) is closed then, with its buffer. Local
+    folders only (TensorBoard's writer also takes `gs://` and `s3://` paths).
+
     Args:
         logdir: the folder of the event file (made if missing).
-        flush_secs: the longest time an event waits in memory before it is written.
+        flush_secs: the longest time between two flushes while events come in.
         filename_suffix: appended to the file's name, as `SummaryWriter`'s.
     """
 
@@ -88,18 +100,24 @@ class EventFile:
         self._logdir = str(logdir)
         self._flush_secs = flush_secs
         self._suffix = filename_suffix
+        self._lock = threading.Lock()  # as TensorBoard's writer, safe to share between threads
+        self._file = None
         self._open()
 
     def _open(self) -> None:
         os.makedirs(self._logdir, exist_ok=True)
-        self._file_name = os.path.join(
-            self._logdir,
-            f"events.out.tfevents.{int(time.time()):010d}.{socket.gethostname()}."
-            f"{os.getpid()}.{next(_file_numbers)}{self._suffix}")
-        self._file = open(self._file_name, "wb")  # noqa: SIM115 (closed by close())
-        self._pending: list[bytes] = []
-        self._pending_bytes = 0
-        self._next_write = time.monotonic() + self._flush_secs
+        while True:  # "xb": never truncate another writer's file
+            self._file_name = os.path.join(
+                self._logdir,
+                f"events.out.tfevents.{int(time.time()):010d}.{socket.gethostname()}."
+                f"{os.getpid()}.{_file_number()}{self._suffix}")
+            try:
+                self._file = open(self._file_name, "xb")  # noqa: SIM115 (closed by close())
+                break
+            except FileExistsError:
+                continue
+        self._closer = weakref.finalize(self, self._file.close)  # at exit, if not before
+        self._next_flush = time.monotonic() + self._flush_secs
         self.add_event(event_pb2.Event(
             wall_time=time.time(), file_version="brain.Event:2",
             source_metadata=event_pb2.SourceMetadata(writer="routine_gym.plumbing.scalars")))
@@ -109,30 +127,31 @@ class EventFile:
         return self._logdir
 
     def add_event(self, event: event_pb2.Event) -> None:
-        if self._file is None:
-            raise OSError(f"the event file {self._file_name} is closed")
         record = _frame(event.SerializeToString())
-        self._pending.append(record)
-        self._pending_bytes += len(record)
-        if self._pending_bytes >= _MAX_PENDING or time.monotonic() >= self._next_write:
-            self._write()
+        with self._lock:
+            if self._file is None:
+                raise OSError(f"the event file {self._file_name} is closed")
+            self._file.write(record)
+            if time.monotonic() >= self._next_flush:
+                self._flush()
 
-    def _write(self) -> None:
-        if self._pending:
-            self._file.write(b"".join(self._pending))
-            self._pending, self._pending_bytes = [], 0
+    def _flush(self) -> None:
         self._file.flush()
-        self._next_write = time.monotonic() + self._flush_secs
+        self._next_flush = time.monotonic() + self._flush_secs
 
     def flush(self) -> None:
-        if self._file is not None:
-            self._write()
+        with self._lock:
+            if self._file is not None:
+                self._flush()
 
     def close(self) -> None:
-        if self._file is not None:
-            self._write()
-            self._file.close()
-            self._file = None
+        with self._lock:
+            if self._file is not None:
+                try:
+                    self._file.close()
+                finally:
+                    self._closer.detach()
+                    self._file = None
 
     def reopen(self) -> None:
         """After `close()`, go on in a new event file (as TensorBoard's writer does)."""
@@ -163,6 +182,9 @@ class ScalarWriter(SummaryWriter):
         self.mirror = mirror
         self._step: int | None = None
         self._values: list[Summary.Value] = []
+        # A run that ends on an exception does not close its writer: the last step's scalars
+        # still go to the file at exit (before the file itself is closed, made earlier).
+        weakref.finalize(self, _write_pending_at_exit, weakref.ref(self))
 
     def _get_file_writer(self) -> FileWriter:
         """SummaryWriter's, with an `EventFile` (created on first use, again after close)."""
@@ -211,3 +233,12 @@ class ScalarWriter(SummaryWriter):
     def close(self) -> None:
         self._write_pending()
         super().close()
+
+
+def _write_pending_at_exit(writer_ref: weakref.ref) -> None:
+    writer = writer_ref()
+    if writer is not None:
+        try:
+            writer._write_pending()
+        except (OSError, ValueError):  # its file was closed already
+            pass
