@@ -174,6 +174,20 @@ struct Buffers {
     }
     return view->buf;
   }
+  // A C-contiguous buffer of `obj` holding a whole number of `T`s: how many, or -1 with a
+  // Python error set.
+  template <typename T>
+  Py_ssize_t count_of(PyObject* obj, const char* name) {
+    Py_buffer* view = &views[count];
+    if (PyObject_GetBuffer(obj, view, PyBUF_C_CONTIGUOUS) != 0) return -1;
+    ++count;
+    if (view->len % static_cast<Py_ssize_t>(sizeof(T)) != 0) {
+      PyErr_Format(PyExc_ValueError, "%s holds %zd bytes, not whole %zd-byte items", name,
+                   view->len, static_cast<Py_ssize_t>(sizeof(T)));
+      return -1;
+    }
+    return view->len / static_cast<Py_ssize_t>(sizeof(T));
+  }
 };
 
 const char kStepDoc[] =
@@ -202,19 +216,19 @@ PyObject* breakout_step(PyObject*, PyObject* args) {
     return nullptr;
   }
   Buffers b;
-  // The sizes that fix E, A and L.
-  if (PyObject_GetBuffer(actions_o, &b.views[b.count], PyBUF_C_CONTIGUOUS) != 0) return nullptr;
-  const Py_ssize_t e = b.views[b.count++].len / static_cast<Py_ssize_t>(sizeof(int64_t));
-  if (PyObject_GetBuffer(lengths_o, &b.views[b.count], PyBUF_C_CONTIGUOUS) != 0) return nullptr;
-  const Py_ssize_t num_actions = b.views[b.count++].len / static_cast<Py_ssize_t>(sizeof(int64_t));
-  if (PyObject_GetBuffer(sequences_o, &b.views[b.count], PyBUF_C_CONTIGUOUS) != 0) return nullptr;
-  const Py_ssize_t seq_bytes = b.views[b.count++].len;
-  if (num_actions == 0 || seq_bytes % (num_actions * static_cast<Py_ssize_t>(sizeof(int64_t)))) {
+  // The sizes that fix E, A and L (views 0, 1 and 2).
+  const Py_ssize_t e = b.count_of<int64_t>(actions_o, "actions");
+  if (e < 0) return nullptr;
+  const Py_ssize_t num_actions = b.count_of<int64_t>(lengths_o, "sequence_lengths");
+  if (num_actions < 0) return nullptr;
+  const Py_ssize_t seq_items = b.count_of<int64_t>(sequences_o, "sequences");
+  if (seq_items < 0) return nullptr;
+  if (num_actions == 0 || seq_items % num_actions) {
     PyErr_SetString(PyExc_ValueError, "sequences must hold the same number of rows as "
                                       "sequence_lengths");
     return nullptr;
   }
-  const Py_ssize_t max_len = seq_bytes / (num_actions * static_cast<Py_ssize_t>(sizeof(int64_t)));
+  const Py_ssize_t max_len = seq_items / num_actions;
   const auto* actions = static_cast<const int64_t*>(b.views[0].buf);
   const auto* seq_lengths = static_cast<const int64_t*>(b.views[1].buf);
   const auto* sequences = static_cast<const int64_t*>(b.views[2].buf);

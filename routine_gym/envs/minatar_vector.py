@@ -146,11 +146,8 @@ class MinAtarVectorEnv(VectorEnv):
             # sticky action is drawn from its own RandomState, kept alive here.
             self._core = np.zeros((num_envs, len(_CORE_FIELDS) + 1), dtype=np.int32)
             self._bricks = np.zeros((num_envs, h, w), dtype=np.uint8)
-            self._rngs = np.zeros(num_envs, dtype=np.uint64)
             self._rng_owners: list[np.random.BitGenerator] = []
-            self._core_sequences = np.array(
-                [list(seq) + [-1] * (self.max_routine_length - len(seq))
-                 for seq in self._sequences], dtype=np.int64)
+            self._core_sequences = padded_actions(self._sequences, self.max_routine_length)
             self._core_lengths = np.array([len(seq) for seq in self._sequences], dtype=np.int64)
             stickies = {environment.sticky_action_prob for environment in self._games}
             self._sticky = float(stickies.pop())
@@ -207,7 +204,7 @@ class MinAtarVectorEnv(VectorEnv):
             self._bricks[i] = game.brick_map != 0
         # The bit generators themselves (a RandomState can swap its own for a new one).
         self._rng_owners = [environment.random._bit_generator for environment in self._games]
-        self._rngs[:] = [bits.ctypes.bit_generator.value for bits in self._rng_owners]
+        self._rngs = self._rng_addresses()
 
     def __getstate__(self) -> dict[str, Any]:
         """What `copy` and `pickle` keep: all but the compiled core's generator addresses, which
@@ -219,8 +216,12 @@ class MinAtarVectorEnv(VectorEnv):
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
         if self.compiled:
-            self._rngs = np.array([bits.ctypes.bit_generator.value
-                                   for bits in self._rng_owners], dtype=np.uint64)
+            self._rngs = self._rng_addresses()
+
+    def _rng_addresses(self) -> np.ndarray:
+        """Where each game's `bitgen_t` is, in this process: what the compiled core draws from."""
+        return np.array([bits.ctypes.bit_generator.value for bits in self._rng_owners],
+                        dtype=np.uint64)
 
     def _start_episode(self, i: int) -> None:
         self._elapsed[i] = 0

@@ -86,9 +86,8 @@ class Counters:
     def add(self, choices: np.ndarray, steps: int) -> None:
         """Count decisions (`choices`, each an index of the action space) and the primitive
         steps that ran since the last call."""
-        self._choices += np.bincount(np.asarray(choices, dtype=np.int64),
-                                     minlength=len(self._choices))
-        self._steps += int(steps)
+        self.add_counts(np.bincount(np.asarray(choices, dtype=np.int64),
+                                    minlength=len(self._choices)), steps)
 
     def add_counts(self, counts: np.ndarray, steps: int) -> None:
         """Count decisions already counted per choice (`counts[c]`: how many chose `c`, e.g.
