@@ -7,7 +7,8 @@ STAMP := $(VENV)/.installed
 .PHONY: test run lint bench clean
 
 $(STAMP): pyproject.toml setup.py routine_gym/_sequitur.cpp routine_gym/_minatar_core.cpp \
-		routine_gym/_records.cpp
+		routine_gym/_records.cpp routine_gym/_masked_gru.cpp routine_gym/_masked_gru_kernel.h \
+		routine_gym/_pybuffers.h
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e ".[dev]"

@@ -1,5 +1,5 @@
-"""Build the compiled cores (Sequitur, MinAtar Breakout, TensorBoard record framing); all other
-metadata lives in pyproject.toml."""
+"""Build the compiled cores (Sequitur, MinAtar Breakout, TensorBoard record framing, CompILE's
+masked GRU); all other metadata lives in pyproject.toml."""
 
 from setuptools import Extension, setup
 
@@ -14,6 +14,7 @@ setup(
         Extension(
             "routine_gym._minatar_core",
             ["routine_gym/_minatar_core.cpp"],
+            depends=["routine_gym/_pybuffers.h"],
             extra_compile_args=["-O2", "-std=c++17"],
             language="c++",
         ),
@@ -21,6 +22,16 @@ setup(
             "routine_gym._records",
             ["routine_gym/_records.cpp"],
             extra_compile_args=["-O2", "-std=c++17"],
+            language="c++",
+        ),
+        Extension(
+            "routine_gym._masked_gru",
+            ["routine_gym/_masked_gru.cpp"],
+            depends=["routine_gym/_pybuffers.h", "routine_gym/_masked_gru_kernel.h"],
+            # -O3, contracted multiply-adds and no FP traps: the loops are meant to vectorize (FMA on
+            # AVX2; selects and clamps in the σ and tanh loops need -fno-trapping-math to vectorize).
+            extra_compile_args=["-O3", "-std=c++17", "-ffp-contract=fast", "-fno-trapping-math",
+                                "-Wno-psabi"],
             language="c++",
         ),
     ]

@@ -30,6 +30,8 @@
 #include <cstring>
 #include <initializer_list>
 
+#include "_pybuffers.h"
+
 namespace {
 
 // numpy/random/bitgen.h: the bit generator interface behind `RandomState._bit_generator`.
@@ -151,44 +153,7 @@ void write_state(const int32_t* g, const uint8_t* bricks, float* out) {
   for (int c = 0; c < kCells; ++c) brick_channel[c] = bricks[c] ? 1.0f : 0.0f;
 }
 
-// Holds the Py_buffers of one call and releases them on every way out.
-struct Buffers {
-  static constexpr int kMax = 16;
-  Py_buffer views[kMax];
-  int count = 0;
-  ~Buffers() {
-    for (int i = 0; i < count; ++i) PyBuffer_Release(&views[i]);
-  }
-  // A C-contiguous buffer of `obj` holding exactly `bytes` bytes; nullptr (with a Python error
-  // set) otherwise. `optional`: None gives nullptr with no error.
-  void* get(PyObject* obj, Py_ssize_t bytes, bool writable, const char* name,
-            bool optional = false) {
-    if (optional && obj == Py_None) return nullptr;
-    Py_buffer* view = &views[count];
-    int flags = PyBUF_C_CONTIGUOUS | (writable ? PyBUF_WRITABLE : 0);
-    if (PyObject_GetBuffer(obj, view, flags) != 0) return nullptr;
-    ++count;
-    if (view->len != bytes) {
-      PyErr_Format(PyExc_ValueError, "%s holds %zd bytes, expected %zd", name, view->len, bytes);
-      return nullptr;
-    }
-    return view->buf;
-  }
-  // A C-contiguous buffer of `obj` holding a whole number of `T`s: how many, or -1 with a
-  // Python error set.
-  template <typename T>
-  Py_ssize_t count_of(PyObject* obj, const char* name) {
-    Py_buffer* view = &views[count];
-    if (PyObject_GetBuffer(obj, view, PyBUF_C_CONTIGUOUS) != 0) return -1;
-    ++count;
-    if (view->len % static_cast<Py_ssize_t>(sizeof(T)) != 0) {
-      PyErr_Format(PyExc_ValueError, "%s holds %zd bytes, not whole %zd-byte items", name,
-                   view->len, static_cast<Py_ssize_t>(sizeof(T)));
-      return -1;
-    }
-    return view->len / static_cast<Py_ssize_t>(sizeof(T));
-  }
-};
+using routine_gym::Buffers;
 
 const char kStepDoc[] =
     "breakout_step(core, bricks, rngs, sticky, actions, sequences, sequence_lengths, elapsed,\n"

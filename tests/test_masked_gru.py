@@ -72,3 +72,165 @@ def test_the_elbo_decoder_pass_is_policy_logits_of_every_step_and_segment():
                                    latents.unsqueeze(2).expand(-1, -1, 6, -1))
     torch.testing.assert_close(model._segment_policy_logits(features, latents), expanded,
                                rtol=1e-12, atol=1e-12)
+
+
+# -- the compiled loops (routine_gym/_masked_gru.cpp) against the torch loop ---------------------
+
+import contextlib  # noqa: E402
+
+import pytest  # noqa: E402
+
+import routine_gym.baselines.compile.masked_gru as masked_gru_module  # noqa: E402
+from routine_gym import _masked_gru as core  # noqa: E402
+
+BUILDS = ["best", "portable"]
+
+
+@contextlib.contextmanager
+def _build(name: str):
+    core.select(name)
+    try:
+        yield
+    finally:
+        core.select("best")
+
+
+@contextlib.contextmanager
+def _threads(count: int):
+    before = torch.get_num_threads()
+    torch.set_num_threads(count)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+def _inputs(b: int, t: int, h: int, dtype: torch.dtype, seed: int, scale: float = 1.0):
+    generator = torch.Generator().manual_seed(seed)
+    gates = (scale * torch.randn(b, t, 3 * h, generator=generator, dtype=dtype)).requires_grad_()
+    mask = torch.rand(b, t, generator=generator, dtype=dtype)
+    mask[:, 0] = 1.0
+    if t > 2:
+        mask[0, 2] = 0.0  # an exact restart, as after a hard boundary
+    mask.requires_grad_()
+    weight = (torch.randn(3 * h, h, generator=generator, dtype=dtype) / h ** 0.5).requires_grad_()
+    bias = torch.randn(3 * h, generator=generator, dtype=dtype).requires_grad_()
+    upstream = torch.randn(b, t, h, generator=generator, dtype=dtype)
+    return (gates, mask, weight, bias), upstream
+
+
+def _run(function, inputs, upstream):
+    for x in inputs:
+        x.grad = None
+    out = function.apply(*inputs)
+    (out * upstream).sum().backward()
+    return [out.detach().clone(), *(x.grad.clone() for x in inputs)]
+
+
+@pytest.mark.parametrize("build", BUILDS)
+@pytest.mark.parametrize(("b", "t", "h"), [(16, 33, 128), (1, 1, 1), (5, 7, 3), (7, 4, 20),
+                                           (3, 9, 17)])
+def test_compiled_loops_equal_the_torch_loop_in_float64(build, b, t, h):
+    """Every shape's remainder path (rows not a multiple of the 4-row tile, columns not a multiple
+    of the 2-vector tile) gives the torch loop's outputs and gradients to float64 rounding."""
+    inputs, upstream = _inputs(b, t, h, torch.float64, seed=b * 100 + h)
+    with _build(build):
+        compiled = _run(masked_gru_module._CompiledMaskedGRU, inputs, upstream)
+    reference = _run(masked_gru_module._TorchMaskedGRU, inputs, upstream)
+    for name, got, expected in zip(["out", "gates", "mask", "weight", "bias"], compiled, reference,
+                                   strict=True):
+        torch.testing.assert_close(got, expected, rtol=1e-12, atol=1e-13, msg=name)
+
+
+@pytest.mark.parametrize("build", BUILDS)
+@pytest.mark.parametrize("scale", [1.0, 30.0])
+def test_compiled_loops_equal_the_torch_loop_in_float32(build, scale):
+    """float32 with the vectorized σ and tanh, inputs small and saturating (±100 and beyond)."""
+    inputs, upstream = _inputs(16, 33, 128, torch.float32, seed=int(scale), scale=scale)
+    with _build(build):
+        compiled = _run(masked_gru_module._CompiledMaskedGRU, inputs, upstream)
+    reference = _run(masked_gru_module._TorchMaskedGRU, inputs, upstream)
+    for name, got, expected in zip(["out", "gates", "mask", "weight", "bias"], compiled, reference,
+                                   strict=True):
+        assert torch.isfinite(got).all(), name
+        torch.testing.assert_close(got, expected, rtol=2e-5, atol=2e-5, msg=name)
+
+
+def test_sigmoid_and_tanh_of_the_float32_loop_are_within_a_few_ulp():
+    """One step from h = 0 with W_hh = 0 and b_hh = 0: r, z = σ(gi), n = tanh(gi_n), over a
+    sweep of gate values from −100 to 100 (both branches of tanh, the clamp of exp)."""
+    h = 1000
+    values = torch.cat([torch.linspace(-100, 100, h - 8), torch.tensor(
+        [0.0, -0.0, 0.625, -0.625, 0.6249, 1e-8, -1e-30, 88.5])])
+    gates = values.repeat(3).view(1, 1, 3 * h)
+    hs, rz, n, ghn = (torch.empty(1, 2, h), torch.empty(1, 1, 2 * h), torch.empty(1, 1, h),
+                      torch.empty(1, 1, h))
+    for build in BUILDS:
+        with _build(build):
+            core.forward(*(x.numpy() for x in (gates, torch.ones(1, 1), torch.zeros(h, 3 * h),
+                                               torch.zeros(3 * h), hs, rz, n, ghn)),
+                         1, 1, h, 1, False)
+        exact_sigmoid = torch.sigmoid(values.double())
+        exact_tanh = torch.tanh(values.double())
+        torch.testing.assert_close(rz[0, 0, :h].double(), exact_sigmoid, rtol=4e-7, atol=1e-38)
+        torch.testing.assert_close(n[0, 0].double(), exact_tanh, rtol=4e-7, atol=1e-38)
+        assert n[0, 0, -2].item() == values[-2].item()  # tanh(x) = x for tiny x, sign kept
+        assert rz[0, 0, h - 1].item() == 1.0  # σ(88.5)
+
+
+def test_a_rows_numbers_do_not_depend_on_the_thread_count():
+    """Each row's recurrence is one thread's: outputs and the loops' gradients are bit-identical
+    at 1, 2 and 3 threads (W_hh's gradient is torch's product, compared to rounding)."""
+    inputs, upstream = _inputs(16, 33, 128, torch.float32, seed=5)
+    results = []
+    for count in (1, 2, 3):
+        with _threads(count):
+            results.append(_run(masked_gru_module._CompiledMaskedGRU, inputs, upstream))
+    for other in results[1:]:
+        for index in (0, 1, 2):  # outputs, the gates' and the mask's gradients
+            assert torch.equal(other[index], results[0][index])
+        torch.testing.assert_close(other[3], results[0][3], rtol=1e-5, atol=1e-5)
+
+
+def test_masked_gru_takes_the_compiled_loops_on_cpu_and_non_contiguous_inputs():
+    inputs, upstream = _inputs(4, 6, 8, torch.float64, seed=9)
+    gates, mask, weight, bias = inputs
+    # The same values laid out transposed in memory.
+    gates_t = gates.detach().transpose(0, 1).contiguous().transpose(0, 1).requires_grad_()
+    mask_t = mask.detach().t().contiguous().t().requires_grad_()
+    assert not gates_t.is_contiguous() and not mask_t.is_contiguous()
+    out = masked_gru(gates_t, mask_t, weight, bias)
+    assert out.grad_fn.name().startswith("_CompiledMaskedGRU")
+    (out * upstream).sum().backward()
+    reference = _run(masked_gru_module._TorchMaskedGRU, inputs, upstream)
+    torch.testing.assert_close(out.detach(), reference[0], rtol=1e-12, atol=1e-13)
+    torch.testing.assert_close(gates_t.grad, reference[1], rtol=1e-12, atol=1e-13)
+    torch.testing.assert_close(mask_t.grad, reference[2], rtol=1e-12, atol=1e-13)
+
+
+def test_other_dtypes_take_the_torch_loop():
+    inputs, _ = _inputs(2, 3, 4, torch.float64, seed=1)
+    halves = [x.detach().to(torch.bfloat16) for x in inputs]
+    assert masked_gru(*halves).dtype == torch.bfloat16
+    mixed = [inputs[0], inputs[1].float(), inputs[2], inputs[3]]  # mixed dtypes: torch decides
+    assert not masked_gru_module._compiled(*mixed)
+
+
+def test_the_compiled_entry_points_refuse_wrong_buffers_in_one_line():
+    (gates, mask, weight, bias), _ = _inputs(2, 3, 4, torch.float32, seed=1)
+    hs, rz, n, ghn = torch.empty(2, 4, 4), torch.empty(2, 3, 8), torch.empty(2, 3, 4), \
+        torch.empty(2, 3, 4)
+    arrays = [x.detach().numpy() for x in (gates, mask, weight.t().contiguous(), bias, hs, rz, n,
+                                           ghn)]
+    with pytest.raises(ValueError, match="^hs holds 96 bytes, expected 128$"):
+        core.forward(*arrays[:4], torch.empty(2, 3, 4).numpy(), *arrays[5:], 2, 3, 4, 1, False)
+    with pytest.raises(ValueError, match="batch, steps and hidden need to be >= 1"):
+        core.forward(*arrays, 0, 3, 4, 1, False)
+    with pytest.raises(ValueError, match="threads needs to be >= 1"):
+        core.forward(*arrays, 2, 3, 4, 0, False)
+    with pytest.raises(ValueError, match="gi holds 288 bytes, expected 576"):
+        core.forward(*arrays, 2, 3, 4, 1, True)  # float32 buffers called as float64
+    with pytest.raises(ValueError, match="expected 'best' or 'portable'"):
+        core.select("avx512")
+    core.forward(*arrays, 2, 3, 4, 1, False)
+    assert core.simd() in ("avx2", "portable")

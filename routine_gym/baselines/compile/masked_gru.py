@@ -16,19 +16,41 @@ backward: 10 segments × 33 steps per batch made the fit take minutes on a CPU. 
 - the loop runs without recording, and `backward` walks it in reverse with the hand-derived
   gradients; the gradient of `W_hh` is one matrix product over all steps at the end.
 
-It is the same function of the same parameters as the `GRUCell` loop; `tests/test_masked_gru.py`
-checks the outputs and every gradient against that loop (float64, to 1e-10) and with
-`torch.autograd.gradcheck`.
+Two implementations of the loops, one function:
+
+- `_CompiledMaskedGRU` (CPU, float32 or float64, all four tensors the same dtype; what the fit
+  runs): each loop is one call into `routine_gym._masked_gru` (`_masked_gru.cpp`), which runs
+  every step in C++ with the GIL released, the batch's rows split among `torch.get_num_threads()`
+  threads, the step's product in register tiles, σ and tanh vectorized (float32: a Cephes-style
+  exp, within a few units in the last place; float64: the C library's). In torch a step was a
+  dozen operations of a few microseconds each on [16, 128] tensors. Each row is one thread's, so
+  the outputs and the gates' and mask's gradients do not depend on the thread count.
+- `_TorchMaskedGRU`: the same loops in torch operations, for other devices and dtypes, and where
+  the module was not built.
+
+The compiled loops round differently from torch's (their own products, σ and tanh), so a seeded
+fit is not bit-identical to one made with the torch loop; it is the same model and loss.
+`tests/test_masked_gru.py` checks both against the `GRUCell` loop (float64, to 1e-10) and with
+`torch.autograd.gradcheck`, the compiled loops against the torch loop in float64 (to 1e-12, on
+shapes that take every remainder path of the tiles) and float32 (saturating inputs included), and
+both builds of the compiled loops (AVX2 and portable).
 """
 
 from __future__ import annotations
 
 import torch
 
+try:
+    from routine_gym import _masked_gru as _core
+except ImportError:  # not built (a source tree without `pip install`): the torch loop
+    _core = None
+
 __all__ = ["masked_gru"]
 
 
-class _MaskedGRU(torch.autograd.Function):
+class _TorchMaskedGRU(torch.autograd.Function):
+    """The recurrence in torch operations: any device and dtype (the compiled loops' reference)."""
+
     # Both loops index prebuilt per-step views (`unbind`, one C call each): at 16 × 128 a view
     # made in Python costs about what the arithmetic does.
 
@@ -96,6 +118,52 @@ class _MaskedGRU(torch.autograd.Function):
         return grad_gi, grad_mask, grad_weight, grad_bias
 
 
+class _CompiledMaskedGRU(torch.autograd.Function):
+    """The recurrence in `routine_gym._masked_gru` (contiguous float32/float64 CPU tensors)."""
+
+    @staticmethod
+    def forward(ctx, gi: torch.Tensor, mask: torch.Tensor, weight_hh: torch.Tensor,
+                bias_hh: torch.Tensor) -> torch.Tensor:
+        b, steps, three_h = gi.shape
+        h = three_h // 3
+        gi, mask = gi.contiguous(), mask.contiguous()
+        weight, bias = weight_hh.detach().contiguous(), bias_hh.detach().contiguous()
+        weight_t = weight.t().contiguous()  # [H, 3H]: the rows of each step's product
+        hs = gi.new_empty(b, steps + 1, h)  # h_{−1} = 0, then h_0 … h_{T−1}
+        rz, n, gh_n = gi.new_empty(b, steps, 2 * h), gi.new_empty(b, steps, h), \
+            gi.new_empty(b, steps, h)
+        _core.forward(*_arrays(gi, mask, weight_t, bias, hs, rz, n, gh_n), b, steps, h,
+                      torch.get_num_threads(), gi.dtype == torch.float64)
+        ctx.save_for_backward(mask, weight, hs, rz, n, gh_n)
+        return hs[:, 1:]
+
+    @staticmethod
+    def backward(ctx, grad_outputs: torch.Tensor):
+        mask, weight, hs, rz, n, gh_n = ctx.saved_tensors
+        b, steps, h = n.shape
+        grad_outputs = grad_outputs.contiguous()
+        grad_gh = n.new_empty(b, steps, 3 * h)  # ∂L/∂(W_hh h_{t−1} + b_hh)
+        grad_gi = n.new_empty(b, steps, 3 * h)
+        grad_mask = n.new_empty(b, steps)
+        _core.backward(*_arrays(grad_outputs, mask, weight, hs, rz, n, gh_n, grad_gh, grad_gi,
+                                grad_mask), b, steps, h, torch.get_num_threads(),
+                       n.dtype == torch.float64)
+        flat = grad_gh.view(-1, 3 * h)
+        grad_weight = flat.t() @ hs[:, :-1].reshape(-1, h)
+        return grad_gi, grad_mask, grad_weight, flat.sum(dim=0)
+
+
+def _arrays(*tensors: torch.Tensor) -> list:
+    """numpy views of CPU tensors (the buffers the compiled loops read and write)."""
+    return [t.detach().numpy() for t in tensors]
+
+
+def _compiled(*tensors: torch.Tensor) -> bool:
+    return _core is not None and all(
+        t.device.type == "cpu" and t.dtype == tensors[0].dtype for t in tensors
+    ) and tensors[0].dtype in (torch.float32, torch.float64)
+
+
 def masked_gru(gi: torch.Tensor, mask: torch.Tensor, weight_hh: torch.Tensor,
                bias_hh: torch.Tensor) -> torch.Tensor:
     """The masked GRU of the module docstring over `[B, T, 3H]` input gates.
@@ -121,4 +189,6 @@ def masked_gru(gi: torch.Tensor, mask: torch.Tensor, weight_hh: torch.Tensor,
         >>> torch.allclose(out, torch.stack(loop, dim=1), atol=1e-6)
         True
     """
-    return _MaskedGRU.apply(gi, mask, weight_hh, bias_hh)
+    if _compiled(gi, mask, weight_hh, bias_hh):
+        return _CompiledMaskedGRU.apply(gi, mask, weight_hh, bias_hh)
+    return _TorchMaskedGRU.apply(gi, mask, weight_hh, bias_hh)
