@@ -234,3 +234,13 @@ def test_the_compiled_entry_points_refuse_wrong_buffers_in_one_line():
         core.select("avx512")
     core.forward(*arrays, 2, 3, 4, 1, False)
     assert core.simd() in ("avx2", "portable")
+
+
+def test_the_environment_variable_selects_the_torch_loop(monkeypatch):
+    inputs, _ = _inputs(2, 3, 4, torch.float32, seed=1)
+    assert masked_gru(*inputs).grad_fn.name().startswith("_CompiledMaskedGRU")
+    monkeypatch.setenv("ROUTINE_GYM_COMPILE_GRU", "torch")
+    assert masked_gru(*inputs).grad_fn.name().startswith("_TorchMaskedGRU")
+    monkeypatch.setenv("ROUTINE_GYM_COMPILE_GRU", "fast")
+    with pytest.raises(ValueError, match="^ROUTINE_GYM_COMPILE_GRU='fast': expected 'compiled'"):
+        masked_gru(*inputs)

@@ -25,8 +25,9 @@ Two implementations of the loops, one function:
   exp, within a few units in the last place; float64: the C library's). In torch a step was a
   dozen operations of a few microseconds each on [16, 128] tensors. Each row is one thread's, so
   the outputs and the gates' and mask's gradients do not depend on the thread count.
-- `_TorchMaskedGRU`: the same loops in torch operations, for other devices and dtypes, and where
-  the module was not built.
+- `_TorchMaskedGRU`: the same loops in torch operations, for other devices and dtypes, where
+  the module was not built, and where the environment variable `ROUTINE_GYM_COMPILE_GRU=torch`
+  asks for it (to reproduce a fit made before the compiled loops, bit for bit).
 
 The compiled loops round differently from torch's (their own products, σ and tanh), so a seeded
 fit is not bit-identical to one made with the torch loop; it is the same model and loss.
@@ -37,6 +38,8 @@ both builds of the compiled loops (AVX2 and portable).
 """
 
 from __future__ import annotations
+
+import os
 
 import torch
 
@@ -159,7 +162,14 @@ def _arrays(*tensors: torch.Tensor) -> list:
 
 
 def _compiled(*tensors: torch.Tensor) -> bool:
-    return _core is not None and all(
+    """Whether `masked_gru` runs the compiled loops on these tensors."""
+    choice = os.environ.get("ROUTINE_GYM_COMPILE_GRU", "")
+    if choice not in ("", "compiled", "torch"):
+        raise ValueError(f"ROUTINE_GYM_COMPILE_GRU={choice!r}: expected 'compiled' (the default) "
+                         "or 'torch'")
+    if _core is None or choice == "torch":
+        return False
+    return all(
         t.device.type == "cpu" and t.dtype == tensors[0].dtype for t in tensors
     ) and tensors[0].dtype in (torch.float32, torch.float64)
 
