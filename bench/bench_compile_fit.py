@@ -1,5 +1,6 @@
 """Benchmark: wall time of CompILE's fit (`algos/compile_a2c.py`'s phase 1) on each shipped MinAtar
-demo, against the same fit with the recognition GRU as the `GRUCell` loop it was before.
+demo, against the same fit with the recognition GRU as the torch loop and as the `GRUCell` loop it
+was before.
 
 The acceptance: CompILE's fit on each shipped MinAtar demo (`demos/MinAtar-*-v1.npz`) within
 60 s of wall time on 2 cores, with the script's defaults.
@@ -18,18 +19,24 @@ and action meanings as `main` does (one env made with `make_env`); env creation 
 demo are outside the timing. `CPU s` is the worker's process CPU time (all its threads) over the
 same call, which a shared machine disturbs less than wall time.
 
-The peer, measured in the same run right after each game: the same fit with the recognition
-GRU as routine-gym had it before `routine_gym/baselines/compile/masked_gru.py` (git HEAD~1 of
-that change): `hidden = self.gru(inputs[:, t], hidden) * mask[:, t, None]` over the window, a
-`torch.nn.GRUCell` called on the GRU's inputs x, once per segment. The worker swaps
-`CompILE._masked_gru` for that loop and `CompILE.recognise` for its current source with the one
-line that projects x to the input gates once per window replaced by `gates = x` (so the cell
-projects x at every step, as before). Should that line ever change, the peer falls back to a loop
-from the input gates (the GRUCell's math written step by step with ordinary autograd ops, which
-leaves out the per-step input projection, so it costs a little less than the old code); the
-report says which peer ran. Before timing, the worker checks on tiny inputs that its loop gives
-`masked_gru`'s outputs and gradients, and that the swapped `recognise` gives the current one's
-boundaries and latents.
+Two peers, measured in the same run right after each game (`--no-torch-loop`, `--no-peer` leave
+them out):
+
+- the torch loop (`--torch-loop`, kind ``torch-loop``): the same fit with
+  `ROUTINE_GYM_COMPILE_GRU=torch`, so `masked_gru` runs its loops in torch operations, as every
+  fit did before the compiled loops (`routine_gym/_masked_gru.cpp`);
+- the GRUCell loop (`--peer`, kind ``peer``): the recognition GRU as routine-gym had it before
+  `routine_gym/baselines/compile/masked_gru.py` (git HEAD~1 of that change):
+  `hidden = self.gru(inputs[:, t], hidden) * mask[:, t, None]` over the window, a
+  `torch.nn.GRUCell` called on the GRU's inputs x, once per segment. The worker swaps
+  `CompILE._masked_gru` for that loop and `CompILE.recognise` for its current source with the
+  one line that projects x to the input gates once per window replaced by `gates = x` (so the
+  cell projects x at every step, as before). Should that line ever change, the peer falls back
+  to a loop from the input gates (the GRUCell's math written step by step with ordinary autograd
+  ops, which leaves out the per-step input projection, so it costs a little less than the old
+  code); the report says which peer ran. Before timing, the worker checks on tiny inputs that
+  its loop gives `masked_gru`'s outputs and gradients, and that the swapped `recognise` gives
+  the current one's boundaries and latents.
 
 `--iterations N` overrides `compile_iterations` for quick tries; the verdict is then not given.
 
@@ -37,7 +44,7 @@ Usage:
     python bench/bench_compile_fit.py
     python bench/bench_compile_fit.py --envs MinAtar/Breakout-v1 --iterations 10 \\
         --out /tmp/cf/compile_fit.md
-    python bench/bench_compile_fit.py --no-peer --torch-threads 1
+    python bench/bench_compile_fit.py --no-peer --no-torch-loop --torch-threads 1
     python bench/bench_compile_fit.py --from-json bench/results/compile_fit.json
 """
 
@@ -70,6 +77,15 @@ FIT_SETTINGS = ("seed", "compile_iterations", "compile_batch_size", "compile_win
                 "compile_learning_rate", "compile_option_steps", "num_options", "torch_threads")
 #: The line of `CompILE.recognise` the peer removes (the input gates, once per window).
 PROJECTION = "gates = F.linear(x, self.gru.weight_ih, self.gru.bias_ih)"
+#: The peers, in the order they run after ours: the report's column name and what they are.
+PEERS = {
+    "torch-loop": ("torch loop", "the same fit with `ROUTINE_GYM_COMPILE_GRU=torch` (masked_gru's "
+                   "loops in torch operations, as the fit ran before the compiled loops)"),
+    "peer": ("GRUCell loop", "the same fit with the recognition GRU as the GRUCell loop of "
+             "routine-gym before `masked_gru.py`"),
+}
+#: The environment variable that picks masked_gru's loops (the torch-loop peer sets it).
+GRU_VARIABLE = "ROUTINE_GYM_COMPILE_GRU"
 #: The functions of the script whose wall time the worker takes, and their report names.
 PHASES = {"agent_view_states": "states", "train_compile": "train", "segment": "segment",
           "fit_options": "options"}
@@ -80,7 +96,7 @@ class Result:
     """One worker's measurement: one game, ours or the peer."""
 
     env_id: str
-    kind: str  # "ours" or "peer"
+    kind: str  # "ours", or a peer: "torch-loop" or "peer" (PEERS)
     command: str
     load_before: str
     torch_threads: str = ""
@@ -97,6 +113,7 @@ class Result:
     segments: int = 0
     peer_gru: str = ""
     check: str = ""
+    gru: str = ""
     returncode: int = 0
     error: str = ""
 
@@ -302,6 +319,14 @@ def worker(args) -> None:
     if args.worker == "peer":
         peer_gru, check = use_peer(sargs.env_id, obs_space, num_actions)
         print(f"# peer: {peer_gru}; checked: {check}", flush=True)
+        gru = "GRUCell loop"
+    else:
+        from routine_gym import _masked_gru
+        from routine_gym.baselines.compile.masked_gru import _compiled
+
+        probe_tensor = torch.zeros(1)
+        gru = (f"compiled loops ({_masked_gru.simd()})" if _compiled(*[probe_tensor] * 4)
+               else "torch loop")
 
     seconds: dict[str, float] = {}
 
@@ -333,17 +358,26 @@ def worker(args) -> None:
         "final_loss": meta["elbo_log"][-1]["loss"] if meta["elbo_log"] else None,
         "codes": [int(c) for c in meta["codes"]],
         "segments": len(meta["segmentation"]["codes"]), "peer_gru": peer_gru, "check": check,
+        "gru": gru,
     }), flush=True)
 
 
 def run_worker(env_id: str, kind: str, args) -> Result:
-    """This file's `--worker {ours,peer}` for one game in a subprocess; reads its JSON line."""
-    cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", kind, "--worker-env",
-           env_id, "--torch-threads", str(args.torch_threads)]
+    """This file's `--worker` for one game and kind (ours, or a peer of PEERS) in a subprocess;
+    reads its JSON line. The torch-loop peer is ours with `ROUTINE_GYM_COMPILE_GRU=torch`; the
+    others run without the variable, whatever this process's environment holds."""
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--worker",
+           "peer" if kind == "peer" else "ours", "--worker-env", env_id, "--torch-threads",
+           str(args.torch_threads)]
     if args.iterations is not None:
         cmd += ["--iterations", str(args.iterations)]
-    result = Result(env_id, kind, shlex.join(cmd), load_average())
-    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
+    env = {k: v for k, v in os.environ.items() if k != GRU_VARIABLE}
+    shown = shlex.join(cmd)
+    if kind == "torch-loop":
+        env[GRU_VARIABLE] = "torch"
+        shown = f"{GRU_VARIABLE}=torch {shown}"
+    result = Result(env_id, kind, shown, load_average())
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, env=env)
     result.returncode = proc.returncode
     line = next((x for x in reversed(proc.stdout.splitlines()) if x.startswith("{")), None)
     if proc.returncode != 0 or line is None:
@@ -400,10 +434,12 @@ def render(results: list[Result], raw: dict) -> str:
     by_game: dict[str, dict[str, Result]] = {}
     for r in results:
         by_game.setdefault(r.env_id, {})[r.kind] = r
-    peer_ran = any(r.kind == "peer" for r in results)
+    peers_ran = [kind for kind in PEERS if any(r.kind == kind for r in results)]
     changed = [f"{k} {settings[k]} (default {defaults[k]})" for k in settings
                if settings[k] != defaults[k]]
-    peer_head, peer_sep = (" peer total s | speed-up |", "---|---|") if peer_ran else ("", "")
+    peer_head = "".join(f" {PEERS[kind][0]} total s | ×ours |" for kind in peers_ran)
+    peer_sep = "---|---|" * len(peers_ran)
+    grus = sorted({r.gru for r in results if r.kind == "ours" and r.gru})
     lines = [
         "# CompILE's fit on the shipped MinAtar demos (compile_a2c.py's phase 1)",
         "",
@@ -415,9 +451,10 @@ def render(results: list[Result], raw: dict) -> str:
         "s` the whole call (these and the small rest: picking the codes, describing the "
         "options). `CPU s`: the process's CPU time over the same call (all threads). "
         f"Target: `total s` ≤ {TARGET_SECONDS:g} s per game with the script's defaults."
-        + (" `peer total s`: the same fit with the recognition GRU as the GRUCell loop of "
-           "routine-gym before `masked_gru.py`, measured right after; `speed-up` = peer total "
-           "/ total." if peer_ran else ""),
+        + (f" Ours ran the recognition GRU as {', '.join(grus)}." if grus else "")
+        + "".join(f" `{PEERS[kind][0]} total s`: {PEERS[kind][1]}, measured right after;"
+                  for kind in peers_ran)
+        + (" `×ours` = that total / ours." if peers_ran else ""),
         "",
         "Settings: " + ", ".join(f"{k} {v}" for k, v in settings.items())
         + (" (torch's default thread count)" if settings["torch_threads"] == 0 else "") + ".",
@@ -434,16 +471,17 @@ def render(results: list[Result], raw: dict) -> str:
         f"|---|---|---|---|---|---|---|---|---|---|---|---|{peer_sep}---|",
     ]
     for env_id, pair in by_game.items():
-        ours, peer = pair.get("ours"), pair.get("peer")
+        ours = pair.get("ours")
         game = env_id.split("/")[-1]
         peer_cells = ""
-        if peer_ran:
+        for kind in peers_ran:
+            peer = pair.get(kind)
             if peer is None or peer.error or peer.total_s is None:
-                peer_cells = f" {'failed: ' + peer.error if peer and peer.error else '–'} | – |"
+                peer_cells += f" {'failed: ' + peer.error if peer and peer.error else '–'} | – |"
             else:
                 speed = ("–" if ours is None or ours.total_s is None
                          else f"{peer.total_s / ours.total_s:.2f}×")
-                peer_cells = f" {peer.total_s:.1f} | {speed} |"
+                peer_cells += f" {peer.total_s:.1f} | {speed} |"
         if ours is None or ours.error:
             error = ours.error if ours else "not run"
             lines.append(f"| {game} | failed: {error} |" + " |" * 10 + peer_cells + " – |")
@@ -456,26 +494,32 @@ def render(results: list[Result], raw: dict) -> str:
             f"{verdict(ours, settings, defaults)} |")
     lines += ["", "## Verdicts", ""]
     for env_id, pair in by_game.items():
-        ours, peer = pair.get("ours"), pair.get("peer")
+        ours = pair.get("ours")
         if ours is None or ours.error:
             lines.append(f"- {env_id}: not measured ({ours.error if ours else 'not run'}).")
             continue
         line = (f"- {env_id}: fit in {ours.total_s:.1f} s ({ours.cpu_s:.1f} CPU s); "
                 f"{TARGET_SECONDS:g} s target: {verdict(ours, settings, defaults)}")
-        if peer is not None and not peer.error and peer.total_s is not None:
-            line += (f"; the GRUCell loop took {peer.total_s:.1f} s "
+        loads, codes = [], []
+        for kind in peers_ran:
+            peer, label = pair.get(kind), PEERS[kind][0]
+            if peer is None:
+                continue
+            loads.append(f"{label}: {peer.load_before}")
+            if peer.error or peer.total_s is None:
+                line += f"; the {label} failed: {peer.error}"
+                continue
+            line += (f"; the {label} took {peer.total_s:.1f} s "
                      f"(train {_num(peer.train_s)} s, segment {_num(peer.segment_s, '.2f')} s, "
                      f"options {_num(peer.options_s)} s; {peer.cpu_s:.1f} CPU s): "
                      f"{peer.total_s / ours.total_s:.2f}× as long; final −ELBO "
                      f"{_num(peer.final_loss, '.3f')} against {_num(ours.final_loss, '.3f')}")
-        elif peer is not None:
-            line += f"; peer failed: {peer.error}"
+            codes.append(f"{label}: {peer.codes}, {peer.segments}")
         lines.append(line + ".")
         lines.append(f"  Load before: {ours.load_before}"
-                     + (f" (peer: {peer.load_before})" if peer is not None else "")
+                     + (f" ({'; '.join(loads)})" if loads else "")
                      + f"; codes chosen {ours.codes}, {ours.segments} segments"
-                     + (f" (peer: {peer.codes}, {peer.segments})"
-                        if peer is not None and not peer.error else "") + ".")
+                     + (f" ({'; '.join(codes)})" if codes else "") + ".")
     lines += ["", "## Setup", "", f"- Command: `{raw['command']}`"]
     peers = sorted({(r.peer_gru, r.check) for r in results if r.kind == "peer" and r.peer_gru})
     for gru, check in peers:
@@ -498,6 +542,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--torch-threads", type=int, default=0,
                         help="torch threads of the fit (default 0: torch's own, the script's "
                              "default)")
+    parser.add_argument("--torch-loop", action=argparse.BooleanOptionalAction, default=True,
+                        help="also time the fit with ROUTINE_GYM_COMPILE_GRU=torch, the torch "
+                             "loop (default on)")
     parser.add_argument("--peer", action=argparse.BooleanOptionalAction, default=True,
                         help="also time the fit with the GRUCell loop (default on)")
     parser.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "compile_fit.md",
@@ -545,12 +592,12 @@ def main(argv: list[str] | None = None) -> None:
     print(f"# {command}\n# load average at start: {load_average()}\n# settings: "
           + ", ".join(f"{k} {v}" for k, v in settings.items()), flush=True)
     results: list[Result] = []
+    kinds = [kind for kind, wanted in (("torch-loop", args.torch_loop), ("peer", args.peer))
+             if wanted]
     for env_id in dict.fromkeys(args.envs):
-        pair = [run_worker(env_id, "ours", args)]
-        if args.peer:
-            pair.append(run_worker(env_id, "peer", args))
-        results += pair
-        ours = pair[0]
+        ours = run_worker(env_id, "ours", args)
+        peers = [run_worker(env_id, kind, args) for kind in kinds]
+        results += [ours, *peers]
         if ours.error:
             line = f"ours FAILED {ours.error}"
         else:
@@ -558,12 +605,12 @@ def main(argv: list[str] | None = None) -> None:
                     f"{ours.total_s:6.1f} s (states {ours.states_s:.1f}, train {ours.train_s:.1f},"
                     f" segment {ours.segment_s:.2f}, options {ours.options_s:.1f})  CPU "
                     f"{ours.cpu_s:.1f} s  {verdict(ours, settings, defaults)}")
-        if args.peer:
-            peer = pair[1]
+        for peer in peers:
+            label = PEERS[peer.kind][0]
             if peer.error:
-                line += f"  | peer FAILED {peer.error}"
+                line += f"  | {label} FAILED {peer.error}"
             else:
-                line += f"  | peer {peer.total_s:.1f} s"
+                line += f"  | {label} {peer.total_s:.1f} s"
                 if not ours.error:
                     line += f" ({peer.total_s / ours.total_s:.2f}×)"
         print(f"{env_id:26s} {line}", flush=True)

@@ -1,6 +1,6 @@
 """`bench/bench_compile_fit.py` run as a user runs it, with a 5-step fit on the shipped Breakout
-demo: it writes its report and JSON, says the target is not judged on a shortened fit, and
-refuses a fit of zero steps with a one-line error."""
+demo: it writes its report and JSON, times the torch-loop peer beside ours, says the target is
+not judged on a shortened fit, and refuses a fit of zero steps with a one-line error."""
 
 from __future__ import annotations
 
@@ -24,8 +24,13 @@ def test_a_short_fit_writes_its_report_and_is_not_judged(tmp_path):
     assert "not judged (--iterations 5, the script's default is 1000)" in report
     data = json.loads(out.with_suffix(".json").read_text())
     assert data["settings"]["compile_iterations"] == 5 and data["target_seconds"] == 60.0
-    [row] = data["results"]
+    row, torch_loop = data["results"]
     assert row["env_id"] == "MinAtar/Breakout-v1" and row["kind"] == "ours"
+    assert row["gru"].startswith("compiled loops (")  # avx2 or portable
+    assert torch_loop["kind"] == "torch-loop" and torch_loop["gru"] == "torch loop"
+    assert torch_loop["command"].startswith("ROUTINE_GYM_COMPILE_GRU=torch ")
+    assert torch_loop["returncode"] == 0 and torch_loop["decisions"] == 154
+    assert "| torch loop total s | ×ours |" in report
     assert row["returncode"] == 0 and row["error"] == ""
     assert row["decisions"] == 154  # the shipped demo's decisions
     # The phases add up to the total (rounding aside) and each took some time.
