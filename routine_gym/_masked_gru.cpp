@@ -17,12 +17,16 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <atomic>
 #include <cstring>
 #include <exception>
+#include <initializer_list>
 #include <thread>
 #include <vector>
 
 #include "_pybuffers.h"
+
+namespace {  // internal linkage: both builds of the kernel stay inside this module
 
 namespace portable {
 #include "_masked_gru_kernel.h"
@@ -38,17 +42,16 @@ namespace avx2 {
 #pragma GCC pop_options
 #endif
 
-namespace {
-
 using routine_gym::Buffers;
 
 // Set by `select`: run the portable build even where the CPU has AVX2 (the tests compare them).
-bool portable_only = false;
+// Atomic: a call reads it with the GIL released while another thread may `select`.
+std::atomic<bool> portable_only{false};
 
 bool use_avx2() {
 #ifdef ROUTINE_GYM_AVX2
   static const bool supported = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
-  return supported && !portable_only;
+  return supported && !portable_only.load();
 #else
   return false;
 #endif
@@ -123,6 +126,37 @@ void run_backward(std::ptrdiff_t batch, std::ptrdiff_t steps, std::ptrdiff_t h, 
   });
 }
 
+// `factors` multiplied, or -1 (with a Python error set) when the product overflows.
+Py_ssize_t product(std::initializer_list<Py_ssize_t> factors) {
+  Py_ssize_t out = 1;
+  for (Py_ssize_t f : factors) {
+    if (__builtin_mul_overflow(out, f, &out)) {
+      PyErr_SetString(PyExc_OverflowError, "the buffers' sizes overflow");
+      return -1;
+    }
+  }
+  return out;
+}
+
+// Runs `body` with the GIL released; a C++ exception in it (memory for the work buffers) becomes
+// a Python MemoryError or RuntimeError. Returns false with the error set.
+template <typename Body>
+bool without_gil(Body body) {
+  int failed = 0;  // 1: out of memory, 2: another exception
+  Py_BEGIN_ALLOW_THREADS
+  try {
+    body();
+  } catch (const std::bad_alloc&) {
+    failed = 1;
+  } catch (...) {
+    failed = 2;
+  }
+  Py_END_ALLOW_THREADS
+  if (failed == 1) PyErr_NoMemory();
+  if (failed == 2) PyErr_SetString(PyExc_RuntimeError, "the masked GRU's loops failed");
+  return failed == 0;
+}
+
 bool check_sizes(Py_ssize_t batch, Py_ssize_t steps, Py_ssize_t hidden, int threads) {
   if (batch < 1 || steps < 1 || hidden < 1) {
     PyErr_Format(PyExc_ValueError, "batch, steps and hidden need to be >= 1, got %zd, %zd, %zd",
@@ -136,6 +170,14 @@ bool check_sizes(Py_ssize_t batch, Py_ssize_t steps, Py_ssize_t hidden, int thre
   return true;
 }
 
+// The sizes' checks shared by both entry points: all >= 1 and every buffer's byte count
+// representable (the largest, [B, T+1, 3H] and [3H, H], checked; the others are smaller).
+bool check_sizes(Py_ssize_t b, Py_ssize_t t, Py_ssize_t h, int threads, Py_ssize_t item) {
+  if (!check_sizes(b, t, h, threads)) return false;
+  return t < PY_SSIZE_T_MAX && product({b, t + 1, 3, h, item}) >= 0 &&
+         product({3, h, h, item}) >= 0;
+}
+
 // forward(gi, mask, weight_t, bias, hs, rz, n, ghn, batch, steps, hidden, threads, double), where
 // weight_t is W_hh transposed, [H, 3H] (the rows of the step's product's right side)
 PyObject* forward(PyObject*, PyObject* args) {
@@ -145,8 +187,8 @@ PyObject* forward(PyObject*, PyObject* args) {
   if (!PyArg_ParseTuple(args, "OOOOOOOOnnnip", &gi_o, &mask_o, &weight_o, &bias_o, &hs_o, &rz_o,
                         &n_o, &ghn_o, &b, &t, &h, &threads, &is_double))
     return nullptr;
-  if (!check_sizes(b, t, h, threads)) return nullptr;
   const Py_ssize_t item = is_double ? sizeof(double) : sizeof(float);
+  if (!check_sizes(b, t, h, threads, item)) return nullptr;
   Buffers bufs;
   void* gi = bufs.get(gi_o, b * t * 3 * h * item, false, "gi");
   void* mask = gi ? bufs.get(mask_o, b * t * item, false, "mask") : nullptr;
@@ -157,19 +199,21 @@ PyObject* forward(PyObject*, PyObject* args) {
   void* n = rz ? bufs.get(n_o, b * t * h * item, true, "n") : nullptr;
   void* ghn = n ? bufs.get(ghn_o, b * t * h * item, true, "ghn") : nullptr;
   if (ghn == nullptr) return nullptr;
-  Py_BEGIN_ALLOW_THREADS
-  if (is_double)
-    run_forward<double>(b, t, h, threads, static_cast<const double*>(gi),
-                        static_cast<const double*>(mask), static_cast<const double*>(weight),
-                        static_cast<const double*>(bias), static_cast<double*>(hs),
-                        static_cast<double*>(rz), static_cast<double*>(n),
-                        static_cast<double*>(ghn));
-  else
-    run_forward<float>(b, t, h, threads, static_cast<const float*>(gi),
-                       static_cast<const float*>(mask), static_cast<const float*>(weight),
-                       static_cast<const float*>(bias), static_cast<float*>(hs),
-                       static_cast<float*>(rz), static_cast<float*>(n), static_cast<float*>(ghn));
-  Py_END_ALLOW_THREADS
+  const bool done = without_gil([&] {
+    if (is_double)
+      run_forward<double>(b, t, h, threads, static_cast<const double*>(gi),
+                          static_cast<const double*>(mask), static_cast<const double*>(weight),
+                          static_cast<const double*>(bias), static_cast<double*>(hs),
+                          static_cast<double*>(rz), static_cast<double*>(n),
+                          static_cast<double*>(ghn));
+    else
+      run_forward<float>(b, t, h, threads, static_cast<const float*>(gi),
+                         static_cast<const float*>(mask), static_cast<const float*>(weight),
+                         static_cast<const float*>(bias), static_cast<float*>(hs),
+                         static_cast<float*>(rz), static_cast<float*>(n),
+                         static_cast<float*>(ghn));
+  });
+  if (!done) return nullptr;
   Py_RETURN_NONE;
 }
 
@@ -182,8 +226,8 @@ PyObject* backward(PyObject*, PyObject* args) {
   if (!PyArg_ParseTuple(args, "OOOOOOOOOOnnnip", &go_o, &mask_o, &weight_o, &hs_o, &rz_o, &n_o,
                         &ghn_o, &ggh_o, &ggi_o, &gm_o, &b, &t, &h, &threads, &is_double))
     return nullptr;
-  if (!check_sizes(b, t, h, threads)) return nullptr;
   const Py_ssize_t item = is_double ? sizeof(double) : sizeof(float);
+  if (!check_sizes(b, t, h, threads, item)) return nullptr;
   Buffers bufs;
   void* go = bufs.get(go_o, b * t * h * item, false, "grad_out");
   void* mask = go ? bufs.get(mask_o, b * t * item, false, "mask") : nullptr;
@@ -196,22 +240,23 @@ PyObject* backward(PyObject*, PyObject* args) {
   void* ggi = ggh ? bufs.get(ggi_o, b * t * 3 * h * item, true, "grad_gi") : nullptr;
   void* gm = ggi ? bufs.get(gm_o, b * t * item, true, "grad_mask") : nullptr;
   if (gm == nullptr) return nullptr;
-  Py_BEGIN_ALLOW_THREADS
-  if (is_double)
-    run_backward<double>(b, t, h, threads, static_cast<const double*>(go),
-                         static_cast<const double*>(mask), static_cast<const double*>(weight),
-                         static_cast<const double*>(hs), static_cast<const double*>(rz),
-                         static_cast<const double*>(n), static_cast<const double*>(ghn),
-                         static_cast<double*>(ggh), static_cast<double*>(ggi),
-                         static_cast<double*>(gm));
-  else
-    run_backward<float>(b, t, h, threads, static_cast<const float*>(go),
-                        static_cast<const float*>(mask), static_cast<const float*>(weight),
-                        static_cast<const float*>(hs), static_cast<const float*>(rz),
-                        static_cast<const float*>(n), static_cast<const float*>(ghn),
-                        static_cast<float*>(ggh), static_cast<float*>(ggi),
-                        static_cast<float*>(gm));
-  Py_END_ALLOW_THREADS
+  const bool done = without_gil([&] {
+    if (is_double)
+      run_backward<double>(b, t, h, threads, static_cast<const double*>(go),
+                           static_cast<const double*>(mask), static_cast<const double*>(weight),
+                           static_cast<const double*>(hs), static_cast<const double*>(rz),
+                           static_cast<const double*>(n), static_cast<const double*>(ghn),
+                           static_cast<double*>(ggh), static_cast<double*>(ggi),
+                           static_cast<double*>(gm));
+    else
+      run_backward<float>(b, t, h, threads, static_cast<const float*>(go),
+                          static_cast<const float*>(mask), static_cast<const float*>(weight),
+                          static_cast<const float*>(hs), static_cast<const float*>(rz),
+                          static_cast<const float*>(n), static_cast<const float*>(ghn),
+                          static_cast<float*>(ggh), static_cast<float*>(ggi),
+                          static_cast<float*>(gm));
+  });
+  if (!done) return nullptr;
   Py_RETURN_NONE;
 }
 
@@ -225,7 +270,7 @@ PyObject* select(PyObject*, PyObject* arg) {
     PyErr_SetString(PyExc_ValueError, "select: expected 'best' or 'portable'");
     return nullptr;
   }
-  portable_only = std::strcmp(name, "portable") == 0;
+  portable_only.store(std::strcmp(name, "portable") == 0);
   return simd(nullptr, nullptr);
 }
 

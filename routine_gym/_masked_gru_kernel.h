@@ -91,13 +91,15 @@ void gemm_acc(std::ptrdiff_t m_size, std::ptrdiff_t n_size, std::ptrdiff_t k_siz
 // σ and tanh of an array in place. Doubles (the tests' gradient checks) use the C library; floats
 // a branch-free Cephes-style exp (range reduction by ln 2 in two parts, a degree-5 polynomial,
 // the power of two written into the exponent bits), which the compiler vectorizes, within a few
-// units in the last place of the C library's.
+// units in the last place of the C library's. A NaN stays NaN through all three (as in torch).
 inline void exp_inplace(float* x_array, std::ptrdiff_t size) {
   for (std::ptrdiff_t i = 0; i < size; ++i) {
     float x = x_array[i];
-    x = x < 88.0f ? x : 88.0f;  // e^88 is finite; σ and tanh saturate long before
-    x = x > -87.3f ? x : -87.3f;  // keeps 2^n a normal float
-    const int n = static_cast<int>(x * 1.44269504088896341f + 126.5f) - 126;  // round(x / ln 2)
+    // Comparisons that are false for NaN, so a NaN passes through the clamps.
+    x = x > 88.0f ? 88.0f : x;  // e^88 is finite; σ and tanh saturate long before
+    x = x < -87.3f ? -87.3f : x;  // keeps 2^n a normal float
+    const float finite = x == x ? x : 0.0f;  // the exponent of a NaN: any valid one
+    const int n = static_cast<int>(finite * 1.44269504088896341f + 126.5f) - 126;  // round(x/ln 2)
     const float nf = static_cast<float>(n);
     const float r = (x - nf * 0.693359375f) - nf * -2.12194440e-4f;
     float y = 1.9875691500e-4f;
@@ -130,7 +132,7 @@ inline void tanh_inplace(float* x, float* scratch, std::ptrdiff_t size) {
                            - 5.37397155531e-2f) * z + 1.33314422036e-1f) * z
                          - 3.33332819422e-1f) * z * v + v;
     const float large = std::copysign(1.0f - 2.0f / (scratch[i] + 1.0f), v);
-    x[i] = a < 0.625f ? small : large;
+    x[i] = a < 0.625f ? small : large;  // NaN: `large`, NaN itself
   }
 }
 
@@ -204,11 +206,14 @@ void backward_rows(std::ptrdiff_t row0, std::ptrdiff_t row1, std::ptrdiff_t step
       T* gi = grad_gi + at * h3;
       T* c = carried + i * h;
       const T m = mask[at];
+      // ∂L/∂m_t first, in its own loop: a sum in order, which would keep the loop below (each
+      // element on its own) from being vectorized.
       T grad_m = 0;
+      for (std::ptrdiff_t j = 0; j < h; ++j)
+        grad_m += (go[j] + c[j]) * (n_t[j] + z[j] * (previous[j] - n_t[j]));
       for (std::ptrdiff_t j = 0; j < h; ++j) {
         const T grad_h = go[j] + c[j];
         const T difference = previous[j] - n_t[j];
-        grad_m += grad_h * (n_t[j] + z[j] * difference);
         const T grad_n = grad_h * (1 - z[j]) * (1 - n_t[j] * n_t[j]) * m;
         const T grad_r = grad_n * ghn_t[j] * r[j] * (1 - r[j]);
         const T grad_z = grad_h * difference * z[j] * (1 - z[j]) * m;

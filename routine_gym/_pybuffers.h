@@ -5,6 +5,7 @@
 #include <Python.h>
 
 namespace routine_gym {
+namespace {  // internal linkage: each module has its own copy
 
 // Holds the Py_buffers of one call and releases them on every way out.
 struct Buffers {
@@ -45,6 +46,7 @@ struct Buffers {
   }
 };
 
+}  // namespace
 }  // namespace routine_gym
 
 #endif  // ROUTINE_GYM_PYBUFFERS_H_

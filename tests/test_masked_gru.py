@@ -178,18 +178,101 @@ def test_sigmoid_and_tanh_of_the_float32_loop_are_within_a_few_ulp():
         assert rz[0, 0, h - 1].item() == 1.0  # σ(88.5)
 
 
-def test_a_rows_numbers_do_not_depend_on_the_thread_count():
+@pytest.mark.parametrize("build", BUILDS)
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_a_rows_numbers_do_not_depend_on_the_thread_count(build, dtype):
     """Each row's recurrence is one thread's: outputs and the loops' gradients are bit-identical
     at 1, 2 and 3 threads (W_hh's gradient is torch's product, compared to rounding)."""
-    inputs, upstream = _inputs(16, 33, 128, torch.float32, seed=5)
+    inputs, upstream = _inputs(16, 33, 128, dtype, seed=5)
     results = []
     for count in (1, 2, 3):
-        with _threads(count):
+        with _threads(count), _build(build):
             results.append(_run(masked_gru_module._CompiledMaskedGRU, inputs, upstream))
     for other in results[1:]:
         for index in (0, 1, 2):  # outputs, the gates' and the mask's gradients
             assert torch.equal(other[index], results[0][index])
         torch.testing.assert_close(other[3], results[0][3], rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("build", BUILDS)
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_nan_and_infinite_gates_come_out_as_in_the_torch_loop(build, dtype):
+    """A NaN stays NaN (a diverging fit shows in its loss); ±inf gates saturate σ and tanh."""
+    (gates, mask, weight, bias), upstream = _inputs(4, 5, 6, dtype, seed=11)
+    with torch.no_grad():
+        gates[0, 1, 2 * 6 + 3] = float("nan")  # a candidate gate of row 0, step 1
+        gates[1, 0, 0] = float("inf")  # r of row 1
+        gates[2, 2, 6 + 1] = -float("inf")  # z of row 2
+        gates[3, 3, 2 * 6] = float("inf")  # n of row 3
+    for nan_weight in (False, True):
+        w = weight.detach().clone()
+        if nan_weight:
+            w[2 * 6 + 1, 4] = float("nan")
+        inputs = [x.detach().clone().requires_grad_() for x in (gates, mask, w, bias)]
+        with _build(build):
+            compiled = _run(masked_gru_module._CompiledMaskedGRU, inputs, upstream)
+        reference = _run(masked_gru_module._TorchMaskedGRU, inputs, upstream)
+        assert torch.isnan(compiled[0]).any()
+        for got, expected in zip(compiled, reference, strict=True):
+            assert torch.equal(torch.isnan(got), torch.isnan(expected))
+            finite = ~torch.isnan(expected)
+            torch.testing.assert_close(got[finite], expected[finite], rtol=1e-5, atol=1e-5)
+
+
+def test_double_backward_is_refused_not_silently_wrong():
+    inputs, upstream = _inputs(2, 3, 4, torch.float64, seed=2)
+    for function in (masked_gru_module._CompiledMaskedGRU, masked_gru_module._TorchMaskedGRU):
+        out = function.apply(*inputs)
+        with pytest.raises(RuntimeError, match="^masked_gru has no double backward"):
+            torch.autograd.grad((out * upstream).sum(), inputs[0], create_graph=True)
+
+
+def test_an_empty_batch_gives_an_empty_output():
+    for shape in ((0, 3, 12), (2, 0, 12)):
+        gates = torch.zeros(shape, requires_grad=True)
+        out = masked_gru(gates, torch.ones(shape[:2]), torch.zeros(12, 4), torch.zeros(12))
+        assert out.shape == (*shape[:2], 4)
+        out.sum().backward()
+        assert gates.grad.shape == shape
+
+
+def test_parameters_without_gradients_get_none():
+    (gates, mask, weight, bias), upstream = _inputs(3, 4, 5, torch.float32, seed=4)
+    weight, bias = weight.detach(), bias.detach()
+    out = masked_gru(gates, mask, weight, bias)
+    (out * upstream).sum().backward()
+    assert gates.grad is not None and mask.grad is not None
+    assert weight.grad is None and bias.grad is None
+
+
+def test_the_torch_loop_where_the_module_is_missing(monkeypatch):
+    inputs, upstream = _inputs(3, 4, 5, torch.float64, seed=6)
+    reference = _run(masked_gru_module._TorchMaskedGRU, inputs, upstream)
+    monkeypatch.setattr(masked_gru_module, "_core", None)
+    out = masked_gru(*inputs)
+    assert out.grad_fn.name().startswith("_TorchMaskedGRU")
+    torch.testing.assert_close(out.detach(), reference[0], rtol=0, atol=0)
+    monkeypatch.setenv("ROUTINE_GYM_COMPILE_GRU", "compiled")
+    with pytest.raises(ValueError, match="^ROUTINE_GYM_COMPILE_GRU=compiled: routine_gym._masked"):
+        masked_gru(*inputs)
+
+
+def test_gcc_builds_on_an_avx2_cpu_run_the_avx2_loops():
+    """The `#pragma GCC target` build and the CPU check: where both hold, the AVX2 loops run."""
+    import platform
+    import sysconfig
+    from pathlib import Path
+
+    cpuinfo = Path("/proc/cpuinfo")
+    flags = cpuinfo.read_text().split() if cpuinfo.exists() else []
+    compiler = str(sysconfig.get_config_var("CC") or "")
+    if platform.machine() != "x86_64" or "gcc" not in compiler or not {"avx2", "fma"} <= set(
+            flags):
+        pytest.skip("not an x86-64 CPU with AVX2 and FMA under GCC")
+    assert core.simd() == "avx2"
+    with _build("portable"):
+        assert core.simd() == "portable"
+    assert core.simd() == "avx2"
 
 
 def test_masked_gru_takes_the_compiled_loops_on_cpu_and_non_contiguous_inputs():

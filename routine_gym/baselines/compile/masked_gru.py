@@ -51,6 +51,15 @@ except ImportError:  # not built (a source tree without `pip install`): the torc
 __all__ = ["masked_gru"]
 
 
+def _refuse_double_backward() -> None:
+    """Both backwards compute outside autograd: under `create_graph=True` (grad mode on inside
+    `backward`) their gradients would carry no graph, and a gradient penalty would lose this
+    function's second-order terms without a word."""
+    if torch.is_grad_enabled():
+        raise RuntimeError("masked_gru has no double backward: its backward is not "
+                           "differentiable (create_graph=True)")
+
+
 class _TorchMaskedGRU(torch.autograd.Function):
     """The recurrence in torch operations: any device and dtype (the compiled loops' reference)."""
 
@@ -85,6 +94,7 @@ class _TorchMaskedGRU(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad_outputs: torch.Tensor):
+        _refuse_double_backward()
         mask, weight_hh, outputs, rz, n, gh_n = ctx.saved_tensors
         steps, b, h = n.shape
         previous = outputs[:-1]  # h_{t−1}
@@ -142,6 +152,7 @@ class _CompiledMaskedGRU(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad_outputs: torch.Tensor):
+        _refuse_double_backward()
         mask, weight, hs, rz, n, gh_n = ctx.saved_tensors
         b, steps, h = n.shape
         grad_outputs = grad_outputs.contiguous()
@@ -152,8 +163,9 @@ class _CompiledMaskedGRU(torch.autograd.Function):
                                 grad_mask), b, steps, h, torch.get_num_threads(),
                        n.dtype == torch.float64)
         flat = grad_gh.view(-1, 3 * h)
-        grad_weight = flat.t() @ hs[:, :-1].reshape(-1, h)
-        return grad_gi, grad_mask, grad_weight, flat.sum(dim=0)
+        grad_weight = flat.t() @ hs[:, :-1].reshape(-1, h) if ctx.needs_input_grad[2] else None
+        grad_bias = flat.sum(dim=0) if ctx.needs_input_grad[3] else None
+        return grad_gi, grad_mask, grad_weight, grad_bias
 
 
 def _arrays(*tensors: torch.Tensor) -> list:
@@ -167,7 +179,12 @@ def _compiled(*tensors: torch.Tensor) -> bool:
     if choice not in ("", "compiled", "torch"):
         raise ValueError(f"ROUTINE_GYM_COMPILE_GRU={choice!r}: expected 'compiled' (the default) "
                          "or 'torch'")
-    if _core is None or choice == "torch":
+    if choice == "torch" or tensors[0].numel() == 0:  # an empty batch: nothing to loop over
+        return False
+    if _core is None:
+        if choice == "compiled":
+            raise ValueError("ROUTINE_GYM_COMPILE_GRU=compiled: routine_gym._masked_gru is not "
+                             "built (pip install the project)")
         return False
     return all(
         t.device.type == "cpu" and t.dtype == tensors[0].dtype for t in tensors
