@@ -66,6 +66,7 @@ from routine_gym.baselines.compile import (
     compile_state,
     describe_options,
     fit_options,
+    gru_choice,
     most_used_codes,
     option_primitive_policy,
     option_summary,
@@ -280,6 +281,7 @@ def learn_options(args: Args, demo, obs_space: gym.spaces.Box, num_actions: int,
 
 
 def main(args: Args) -> dict | None:
+    gru_choice()  # ROUTINE_GYM_COMPILE_GRU checked before a run folder is made
     run = start_run(args, "compile_a2c.py", CHECKPOINT_KEYS, lower_budget=True,
                     extra_checks=extra_checks)
     args, device, writer = run.args, run.device, run.writer

@@ -460,6 +460,24 @@ def test_bad_compile_flags_are_refused(compile_a2c, tmp_path):
         run(compile_a2c, tmp_path, env_id="MiniQbert-v0", num_options=9)
 
 
+def test_a_bad_gru_choice_is_one_line_before_any_run_folder(tmp_path, repo_root):
+    """`ROUTINE_GYM_COMPILE_GRU` is read before the run starts, as a user runs the script."""
+    import os
+    import subprocess
+
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PYTEST")}
+    env["ROUTINE_GYM_COMPILE_GRU"] = "fast"
+    done = subprocess.run(
+        [sys.executable, str(repo_root / "algos" / "compile_a2c.py"), "--env-id", "MiniQbert-v0",
+         "--total-timesteps", "100"], capture_output=True, text=True, timeout=120, cwd=tmp_path,
+        env=env)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [
+        "compile_a2c.py: error: ROUTINE_GYM_COMPILE_GRU='fast': expected 'compiled' (the "
+        "default) or 'torch'"]
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_killed_run_resumes_with_its_own_options(compile_a2c, tmp_path, repo_root, monkeypatch,
                                                  capsys):
     command = [

@@ -255,6 +255,8 @@ def test_the_torch_loop_where_the_module_is_missing(monkeypatch):
     monkeypatch.setenv("ROUTINE_GYM_COMPILE_GRU", "compiled")
     with pytest.raises(ValueError, match="^ROUTINE_GYM_COMPILE_GRU=compiled: routine_gym._masked"):
         masked_gru(*inputs)
+    monkeypatch.setenv("ROUTINE_GYM_COMPILE_GRU", "")  # empty: the default, the torch loop here
+    assert masked_gru(*inputs).grad_fn.name().startswith("_TorchMaskedGRU")
 
 
 def test_gcc_builds_on_an_avx2_cpu_run_the_avx2_loops():

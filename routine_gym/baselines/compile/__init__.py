@@ -83,6 +83,7 @@ from routine_gym.baselines.compile.elbo import (
     reconstruction_nll,
     segment_probabilities,
 )
+from routine_gym.baselines.compile.masked_gru import gru_choice
 from routine_gym.baselines.compile.model import (
     CompILE,
     CompILEConfig,
@@ -119,6 +120,7 @@ __all__ = [
     "compile_state",
     "describe_options",
     "fit_options",
+    "gru_choice",
     "kl_boundary",
     "kl_latent_uniform",
     "load_compile",

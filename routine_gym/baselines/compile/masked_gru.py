@@ -43,12 +43,33 @@ import os
 
 import torch
 
+from routine_gym.plumbing.errors import UsageError
+
 try:
     from routine_gym import _masked_gru as _core
 except ImportError:  # not built (a source tree without `pip install`): the torch loop
     _core = None
 
-__all__ = ["masked_gru"]
+__all__ = ["gru_choice", "masked_gru"]
+
+#: The environment variable that picks the loops: `compiled` (the default) or `torch`.
+GRU_VARIABLE = "ROUTINE_GYM_COMPILE_GRU"
+
+
+def gru_choice() -> str:
+    """`ROUTINE_GYM_COMPILE_GRU`: `"compiled"` (also when unset or empty) or `"torch"`.
+
+    Raises:
+        UsageError: any other value, or `compiled` asked for where the module was not built.
+    """
+    choice = os.environ.get(GRU_VARIABLE, "") or "compiled"
+    if choice not in ("compiled", "torch"):
+        raise UsageError(f"{GRU_VARIABLE}={choice!r}: expected 'compiled' (the default) or "
+                         "'torch'")
+    if choice == "compiled" and _core is None and os.environ.get(GRU_VARIABLE):
+        raise UsageError(f"{GRU_VARIABLE}=compiled: routine_gym._masked_gru is not built "
+                         "(pip install the project)")
+    return choice
 
 
 def _refuse_double_backward() -> None:
@@ -175,17 +196,8 @@ def _arrays(*tensors: torch.Tensor) -> list:
 
 def _compiled(*tensors: torch.Tensor) -> bool:
     """Whether `masked_gru` runs the compiled loops on these tensors."""
-    choice = os.environ.get("ROUTINE_GYM_COMPILE_GRU", "")
-    if choice not in ("", "compiled", "torch"):
-        raise ValueError(f"ROUTINE_GYM_COMPILE_GRU={choice!r}: expected 'compiled' (the default) "
-                         "or 'torch'")
-    if choice == "torch" or tensors[0].numel() == 0:  # an empty batch: nothing to loop over
-        return False
-    if _core is None:
-        if choice == "compiled":
-            raise ValueError("ROUTINE_GYM_COMPILE_GRU=compiled: routine_gym._masked_gru is not "
-                             "built (pip install the project)")
-        return False
+    if gru_choice() == "torch" or _core is None or tensors[0].numel() == 0:
+        return False  # (an empty batch: nothing to loop over)
     return all(
         t.device.type == "cpu" and t.dtype == tensors[0].dtype for t in tensors
     ) and tensors[0].dtype in (torch.float32, torch.float64)
