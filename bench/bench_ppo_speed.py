@@ -155,10 +155,11 @@ def render(results: list[Result], args, command: str, before: str, after: str) -
         "torch's default, both scripts' default; 1: the sweeps'); SPS = primitive "
         "agent steps between the progress line at the first step ≥ the warm-up and the last "
         "one, over the wall time between them; `CPU s` the process's CPU time over the same "
-        "steps. **The machine is shared**: other jobs ran during the measurement (the load "
-        "averages and the busiest other processes are below), so the figures are lower than on "
-        "an idle machine and vary between repeats; compare the two scripts of a pair, which ran "
-        "back to back. With the load before each run below 0.5 the machine was idle.", "",
+        "steps. Other jobs on the machine would lower the figures and make repeats vary: the "
+        "load averages before each run are in the table and the busiest other processes at the "
+        "end under Setup. The benchmark's own runs keep about two cores busy, so a load near 2 "
+        "before a run is mostly the previous run's. Compare the two scripts of a pair, which ran "
+        "back to back.", "",
         "| config | script | mode | threads | repeat | load (1/5/15) before | steps timed | wall s "
         "| SPS | CPU s | steps per CPU s | routine use |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
