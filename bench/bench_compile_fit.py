@@ -84,8 +84,6 @@ PEERS = {
     "peer": ("GRUCell loop", "the same fit with the recognition GRU as the GRUCell loop of "
              "routine-gym before `masked_gru.py`"),
 }
-#: The environment variable that picks masked_gru's loops (the torch-loop peer sets it).
-GRU_VARIABLE = "ROUTINE_GYM_COMPILE_GRU"
 #: The functions of the script whose wall time the worker takes, and their report names.
 PHASES = {"agent_view_states": "states", "train_compile": "train", "segment": "segment",
           "fit_options": "options"}
@@ -370,6 +368,8 @@ def run_worker(env_id: str, kind: str, args) -> Result:
            str(args.torch_threads)]
     if args.iterations is not None:
         cmd += ["--iterations", str(args.iterations)]
+    from routine_gym.baselines.compile.masked_gru import GRU_VARIABLE
+
     env = {k: v for k, v in os.environ.items() if k != GRU_VARIABLE}
     shown = shlex.join(cmd)
     if kind == "torch-loop":

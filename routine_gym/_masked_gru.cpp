@@ -57,50 +57,50 @@ bool use_avx2() {
 #endif
 }
 
-// Runs `body(row0, row1, chunk)` on `chunks` contiguous pieces of [0, rows), the first on this
-// thread and the others on new ones (all of them here when a thread cannot be started).
-template <typename Body>
-void split_rows(std::ptrdiff_t rows, int chunks, Body body) {
-  std::vector<std::thread> helpers;
+// Runs `body(row0, row1, work)` on min(threads, rows) contiguous pieces of [0, rows), the first
+// on this thread and the others on new ones (all of them here when a thread cannot be started).
+// Each piece gets its own scratch of `work_per_row` values a row plus `work_extra`, allocated
+// here, before any thread starts, so running out of memory is an exception of this thread.
+template <typename T, typename Body>
+void split_rows(std::ptrdiff_t rows, int threads, std::ptrdiff_t work_per_row,
+                std::ptrdiff_t work_extra, Body body) {
+  const int chunks = static_cast<int>(rows < threads ? rows : threads);
   auto bound = [&](int k) { return rows * k / chunks; };
+  std::vector<std::vector<T>> work(chunks);
+  for (int k = 0; k < chunks; ++k)
+    work[k].resize((bound(k + 1) - bound(k)) * work_per_row + work_extra);
+  std::vector<std::thread> helpers;
   for (int k = 1; k < chunks; ++k) {
     try {
-      helpers.emplace_back(body, bound(k), bound(k + 1), k);
+      helpers.emplace_back(body, bound(k), bound(k + 1), work[k].data());
     } catch (const std::exception&) {
-      body(bound(k), bound(k + 1), k);
+      body(bound(k), bound(k + 1), work[k].data());
     }
   }
-  body(bound(0), bound(1), 0);
+  body(bound(0), bound(1), work[0].data());
   for (auto& helper : helpers) helper.join();
-}
-
-int chunks_for(std::ptrdiff_t rows, int threads) {
-  if (threads < 1) threads = 1;
-  return static_cast<int>(rows < threads ? rows : threads);
 }
 
 template <typename T>
 void run_forward(std::ptrdiff_t batch, std::ptrdiff_t steps, std::ptrdiff_t h, int threads,
                  const T* gi, const T* mask, const T* weight_t, const T* bias, T* hs, T* rz, T* n,
                  T* ghn) {
-  const std::ptrdiff_t h3 = 3 * h;
   for (std::ptrdiff_t row = 0; row < batch; ++row)
     std::memset(hs + row * (steps + 1) * h, 0, h * sizeof(T));
-  const int chunks = chunks_for(batch, threads);
-  std::vector<std::vector<T>> work(chunks);
-  for (int k = 0; k < chunks; ++k) work[k].resize((batch * (k + 1) / chunks - batch * k / chunks) * h3 + 2 * h);
   const bool fast = use_avx2();
-  split_rows(batch, chunks, [&](std::ptrdiff_t row0, std::ptrdiff_t row1, int k) {
+  // forward_rows' scratch: the step's gates, 3H a row, and σ/tanh's 2H.
+  split_rows<T>(batch, threads, 3 * h, 2 * h, [&](std::ptrdiff_t row0, std::ptrdiff_t row1,
+                                                  T* work) {
 #ifdef ROUTINE_GYM_AVX2
     if (fast) {
-      avx2::forward_rows<T>(row0, row1, steps, h, gi, mask, weight_t, bias, hs, rz, n,
-                            ghn, work[k].data());
+      avx2::forward_rows<T>(row0, row1, steps, h, gi, mask, weight_t, bias, hs, rz, n, ghn,
+                            work);
       return;
     }
 #endif
     (void)fast;
-    portable::forward_rows<T>(row0, row1, steps, h, gi, mask, weight_t, bias, hs, rz, n,
-                              ghn, work[k].data());
+    portable::forward_rows<T>(row0, row1, steps, h, gi, mask, weight_t, bias, hs, rz, n, ghn,
+                              work);
   });
 }
 
@@ -108,21 +108,19 @@ template <typename T>
 void run_backward(std::ptrdiff_t batch, std::ptrdiff_t steps, std::ptrdiff_t h, int threads,
                   const T* grad_out, const T* mask, const T* weight, const T* hs, const T* rz,
                   const T* n, const T* ghn, T* grad_gh, T* grad_gi, T* grad_mask) {
-  const int chunks = chunks_for(batch, threads);
-  std::vector<std::vector<T>> work(chunks);
-  for (int k = 0; k < chunks; ++k) work[k].resize((batch * (k + 1) / chunks - batch * k / chunks) * h);
   const bool fast = use_avx2();
-  split_rows(batch, chunks, [&](std::ptrdiff_t row0, std::ptrdiff_t row1, int k) {
+  // backward_rows' scratch: the gradient carried to the previous step, H a row.
+  split_rows<T>(batch, threads, h, 0, [&](std::ptrdiff_t row0, std::ptrdiff_t row1, T* work) {
 #ifdef ROUTINE_GYM_AVX2
     if (fast) {
       avx2::backward_rows<T>(row0, row1, steps, h, grad_out, mask, weight, hs, rz, n, ghn,
-                             grad_gh, grad_gi, grad_mask, work[k].data());
+                             grad_gh, grad_gi, grad_mask, work);
       return;
     }
 #endif
     (void)fast;
     portable::backward_rows<T>(row0, row1, steps, h, grad_out, mask, weight, hs, rz, n, ghn,
-                               grad_gh, grad_gi, grad_mask, work[k].data());
+                               grad_gh, grad_gi, grad_mask, work);
   });
 }
 
@@ -157,23 +155,18 @@ bool without_gil(Body body) {
   return failed == 0;
 }
 
-bool check_sizes(Py_ssize_t batch, Py_ssize_t steps, Py_ssize_t hidden, int threads) {
-  if (batch < 1 || steps < 1 || hidden < 1) {
+// The sizes' checks shared by both entry points: all >= 1 and every buffer's byte count
+// representable (the largest, [B, T+1, 3H] and [3H, H], checked; the others are smaller).
+bool check_sizes(Py_ssize_t b, Py_ssize_t t, Py_ssize_t h, int threads, Py_ssize_t item) {
+  if (b < 1 || t < 1 || h < 1) {
     PyErr_Format(PyExc_ValueError, "batch, steps and hidden need to be >= 1, got %zd, %zd, %zd",
-                 batch, steps, hidden);
+                 b, t, h);
     return false;
   }
   if (threads < 1) {
     PyErr_Format(PyExc_ValueError, "threads needs to be >= 1, got %d", threads);
     return false;
   }
-  return true;
-}
-
-// The sizes' checks shared by both entry points: all >= 1 and every buffer's byte count
-// representable (the largest, [B, T+1, 3H] and [3H, H], checked; the others are smaller).
-bool check_sizes(Py_ssize_t b, Py_ssize_t t, Py_ssize_t h, int threads, Py_ssize_t item) {
-  if (!check_sizes(b, t, h, threads)) return false;
   return t < PY_SSIZE_T_MAX && product({b, t + 1, 3, h, item}) >= 0 &&
          product({3, h, h, item}) >= 0;
 }
@@ -290,8 +283,8 @@ PyMethodDef kMethods[] = {
 
 PyModuleDef kModule = {
     PyModuleDef_HEAD_INIT, "_masked_gru",
-    "Compiled recurrence of CompILE's masked GRU (routine_gym.baselines.compile.masked_gru).", -1,
-    kMethods,
+    "Compiled recurrence of CompILE's masked GRU (routine_gym.baselines.compile.masked_gru).",
+    -1, kMethods, nullptr, nullptr, nullptr, nullptr,
 };
 
 }  // namespace

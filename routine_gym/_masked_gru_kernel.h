@@ -85,7 +85,8 @@ void gemm_acc(std::ptrdiff_t m_size, std::ptrdiff_t n_size, std::ptrdiff_t k_siz
   std::ptrdiff_t i = 0;
   for (; i + 4 <= m_size; i += 4)
     gemm_rows<T, 4>(n_size, k_size, a + i * lda, lda, b, ldb, c + i * ldc, ldc);
-  for (; i < m_size; ++i) gemm_rows<T, 1>(n_size, k_size, a + i * lda, lda, b, ldb, c + i * ldc, ldc);
+  for (; i < m_size; ++i)
+    gemm_rows<T, 1>(n_size, k_size, a + i * lda, lda, b, ldb, c + i * ldc, ldc);
 }
 
 // σ and tanh of an array in place. Doubles (the tests' gradient checks) use the C library; floats
