@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 
 $(STAMP): pyproject.toml setup.py routine_gym/_sequitur.cpp routine_gym/_minatar_core.cpp \
 		routine_gym/_records.cpp routine_gym/_masked_gru.cpp routine_gym/_masked_gru_kernel.h \
-		routine_gym/_pybuffers.h
+		routine_gym/_pybuffers.h routine_gym/_wrapper_core.cpp
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e ".[dev]"

@@ -1,6 +1,7 @@
 """Build the compiled cores (Sequitur, MinAtar Breakout, TensorBoard record framing, CompILE's
-masked GRU); all other metadata lives in pyproject.toml."""
+masked GRU, RoutineActionWrapper's step); all other metadata lives in pyproject.toml."""
 
+import numpy
 from setuptools import Extension, setup
 
 setup(
@@ -35,6 +36,15 @@ setup(
             language="c++",
             # masked_gru.py runs the torch loop without it (a compiler without GCC's vector
             # extensions, such as MSVC, skips it instead of failing the install).
+            optional=True,
+        ),
+        Extension(
+            "routine_gym._wrapper_core",
+            ["routine_gym/_wrapper_core.cpp"],
+            include_dirs=[numpy.get_include()],
+            extra_compile_args=["-O2", "-std=c++17"],
+            language="c++",
+            # wrapper.py steps in Python without it.
             optional=True,
         ),
     ]

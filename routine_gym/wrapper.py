@@ -26,13 +26,18 @@ from routine_gym.macro_info import (
     write_routine_info,
 )
 
+try:  # the compiled step (`_wrapper_core.cpp`); without it every step runs `step` below
+    from routine_gym._wrapper_core import Stepper as _Stepper
+except ImportError:  # not built (an optional extension), or built against another numpy
+    _Stepper = None
+
 __all__ = ["RoutineActionWrapper", "merge_final"]
 
 #: Steps served by one allocation of the `routine_*` info arrays (see `_new_info_blocks`).
 _BLOCK_ROWS = 256
 # What `_new_buffers` makes: views of per-instance scratch memory, left out of a copy.
 _BUFFERS = ("_sequence_buffers", "_rows", "_actions_out", "_rewards_out", "_terminated_out",
-            "_truncated_out")
+            "_truncated_out", "_stepper", "step")
 # Observation spaces whose samples are numpy arrays (or integers) of a fixed shape and dtype.
 _ARRAY_SPACES = (spaces.Box, spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary)
 
@@ -65,6 +70,13 @@ class RoutineActionWrapper(
 
     Recording observations copies one observation per primitive step, plus padding; pass
     `record_observations=False` when the learner does not need the intermediate states.
+
+    Where the compiled core is built (`routine_gym._wrapper_core`, built by `pip install`), an
+    instance's `step` is its compiled twin: the same loop, values and errors, a few times
+    faster, and it reuses a step's info arrays once nobody holds them any more (a consumer that
+    keeps an array never sees it change). A subclass that overrides `step`, and a
+    `record_observations=True` wrapper of a Dict or Tuple observation space, run the Python
+    method; so does everything without the compiled core.
 
     Example:
         >>> import gymnasium as gym
@@ -169,18 +181,32 @@ class RoutineActionWrapper(
 
     def _new_buffers(self) -> None:
         """The memoryviews `step` writes through: each action's primitives, copied into the
-        info row of a routine's step, and the first info blocks (`_new_info_blocks`)."""
+        info row of a routine's step, and the first info blocks (`_new_info_blocks`); and the
+        compiled step where it can serve this instance (the class docstring)."""
         self._sequence_buffers = [
             memoryview(row) for row in padded_actions(self._sequences, self.max_routine_length)
         ]
         self._new_info_blocks()
+        self._stepper = None
+        compiled = (_Stepper is not None and type(self).step is RoutineActionWrapper.step
+                    and (self._array_observations or not self.record_observations))
+        if compiled:
+            record = self.record_observations
+            obs_space = self.env.observation_space
+            self._stepper = _Stepper(
+                self.env, self._sequences, self.num_primitive_actions, self.max_routine_length,
+                self.action_space, obs_space.shape if record else None,
+                obs_space.dtype if record else None)
+            # An instance attribute: `wrapper.step(a)` calls the core with no Python frame
+            # between (a third of the cost of a one-step call).
+            self.step = self._stepper.step
 
     def __getstate__(self) -> dict[str, Any]:
         """The state `copy` and `pickle` save: all but the memoryviews (which neither can
         save) and the info blocks they view; a copy makes its own (`__setstate__`)."""
         state = self.__dict__.copy()
         for key in _BUFFERS:
-            del state[key]
+            state.pop(key, None)
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -234,7 +260,16 @@ class RoutineActionWrapper(
         except StopIteration:
             self._new_info_blocks()
             start, actions_row, rewards_row, terminated_row, truncated_row = next(self._rows)
-        observations = [] if self.record_observations else None
+        # Observations are recorded as they arrive (an env may return one array it updates in
+        # place): array ones straight into the stacked, zero-padded array, structured ones
+        # into a list that Gymnasium's batching helpers stack at the end.
+        stacked = observations = None
+        if self.record_observations:
+            if self._array_observations:
+                # np.zeros: the padding is zero already (and large arrays are zeroed lazily).
+                stacked = np.zeros(self._stacked_shape, dtype=self._observation_dtype)
+            else:
+                observations = []
         if a < n:
             # A primitive goes to the inner env as the caller gave it, as it would without the
             # wrapper; one inner step needs no loop.
@@ -243,7 +278,9 @@ class RoutineActionWrapper(
             self._rewards_out[start] = total_reward
             self._actions_out[start] = a
             executed = 1
-            if observations is not None:
+            if stacked is not None:
+                stacked[0] = obs
+            elif observations is not None:
                 observations.append(obs)
         else:
             env_step = self.env.step
@@ -255,9 +292,11 @@ class RoutineActionWrapper(
                 reward = float(reward)
                 total_reward += reward
                 rewards_out[start + executed] = reward
-                executed += 1
-                if observations is not None:
+                if stacked is not None:
+                    stacked[executed] = obs
+                elif observations is not None:
                     observations.append(obs)
+                executed += 1
                 if terminated or truncated:
                     break
             if executed == 1:
@@ -269,25 +308,18 @@ class RoutineActionWrapper(
         if truncated:
             self._truncated_out[start + executed - 1] = True
 
+        if observations is not None:
+            stacked = self._stack_structured(observations)
         write_routine_info(
             info, a - n if a >= n else -1, executed, actions_row, rewards_row, terminated_row,
-            truncated_row,
-            None if observations is None else self._stack_observations(observations))
+            truncated_row, stacked)
         return obs, total_reward, terminated, truncated, info
 
-    def _stack_observations(self, observations: list[Any]) -> Any:
-        """The executed observations stacked and zero-padded to `max_routine_length`."""
-        length = self.max_routine_length
-        if self._array_observations:
-            # np.zeros: the padding rows are zero already (and large arrays are zeroed lazily).
-            stacked = np.zeros(self._stacked_shape, dtype=self._observation_dtype)
-            if len(observations) == 1:
-                stacked[0] = observations[0]
-            else:  # one assignment of the list: about half the cost of a row at a time
-                stacked[: len(observations)] = observations
-            return stacked
-        padding = [self._pad_observation] * (length - len(observations))
-        out = create_empty_array(self.observation_space, n=length, fn=np.empty)
+    def _stack_structured(self, observations: list[Any]) -> Any:
+        """Structured (Dict, Tuple, ...) observations stacked and zero-padded to
+        `max_routine_length`."""
+        padding = [self._pad_observation] * (self.max_routine_length - len(observations))
+        out = create_empty_array(self.observation_space, n=self.max_routine_length, fn=np.empty)
         return concatenate(self.observation_space, observations + padding, out)
 
     def get_action_meanings(self) -> list[str]:
