@@ -132,3 +132,22 @@ def test_installed_experiment_runs_the_scripts_shipped_in_the_package(installed,
         assert str(installed["site"] / "routine_gym" / "algos" / f"{script}.py") in log
         scripts.append(script)
     assert sorted(scripts) == ["rapl_a2c"] * 2 + ["rapl_ppo"] * 3
+
+def test_installed_package_carries_the_compiled_cores(installed):
+    """The wheel's extensions load from the install, and the wrapper steps through its core."""
+    out = _python(installed, (
+        "import json, importlib\n"
+        "import gymnasium as gym\n"
+        "from routine_gym import RoutineActionWrapper\n"
+        "names = ['_sequitur', '_minatar_core', '_records', '_masked_gru', '_wrapper_core']\n"
+        "files = {n: importlib.import_module('routine_gym.' + n).__file__ for n in names}\n"
+        "env = RoutineActionWrapper(gym.make('CartPole-v1'), [[0, 1]])\n"
+        "env.reset(seed=0)\n"
+        "info = env.step(2)[4]\n"
+        "print(json.dumps({'files': files, 'core': type(env.step.__self__).__name__,\n"
+        "    'actions': info['routine_actions'].tolist()}))"
+    ))
+    for name, file in out["files"].items():
+        assert Path(file).is_relative_to(installed["site"]), name
+    assert out["core"] == "Stepper"
+    assert out["actions"] == [0, 1]
