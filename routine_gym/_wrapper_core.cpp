@@ -448,7 +448,8 @@ PyObject* step(PyObject* self_obj, PyObject* action) {
 
 PyMethodDef kStepperMethods[] = {
     {"step", step, METH_O,
-     "step(action) -> (obs, reward, terminated, truncated, info): RoutineActionWrapper.step."},
+     "step($self, action, /)\n--\n\nRun the primitive action or routine `action`: "
+     "RoutineActionWrapper.step, returning (obs, reward, terminated, truncated, info)."},
     {nullptr, nullptr, 0, nullptr},
 };
 

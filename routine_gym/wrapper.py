@@ -201,6 +201,12 @@ class RoutineActionWrapper(
             # between (a third of the cost of a one-step call).
             self.step = self._stepper.step
 
+    def __setattr__(self, name: str, value: Any) -> None:
+        """Set an attribute; a new inner `env` gets a compiled step of its own."""
+        super().__setattr__(name, value)
+        if name == "env" and self.__dict__.get("_stepper") is not None:
+            self._new_buffers()
+
     def __getstate__(self) -> dict[str, Any]:
         """The state `copy` and `pickle` save: all but the memoryviews (which neither can
         save) and the info blocks they view; a copy makes its own (`__setstate__`)."""

@@ -281,3 +281,20 @@ def test_a_copy_steps_its_own_env():
     assert twin.step.__self__ is twin._stepper is not env._stepper
     twin.step(3)
     assert (env.env.t, twin.env.t) == (2, 4)
+
+
+def test_a_new_inner_env_gets_its_own_compiled_step():
+    env = RoutineActionWrapper(ScriptEnv("float32"), [[1, 1]])
+    env.reset(seed=0)
+    other = ScriptEnv("float32")
+    other.reset(seed=0)
+    env.env = other
+    env.step(3)
+    assert other.t == 2 and env.step.__self__ is env._stepper
+
+
+def test_the_compiled_step_has_a_signature():
+    import inspect
+
+    env = RoutineActionWrapper(ScriptEnv("float32"), [[1, 1]])
+    assert list(inspect.signature(env.step).parameters) == ["action"]
