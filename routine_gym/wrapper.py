@@ -35,7 +35,8 @@ __all__ = ["RoutineActionWrapper", "merge_final"]
 
 #: Steps served by one allocation of the `routine_*` info arrays (see `_new_info_blocks`).
 _BLOCK_ROWS = 256
-# What `_new_buffers` makes: views of per-instance scratch memory, left out of a copy.
+# What `_new_buffers` makes: views of per-instance scratch memory, and the compiled step (bound
+# to this instance's env), left out of a copy.
 _BUFFERS = ("_sequence_buffers", "_rows", "_actions_out", "_rewards_out", "_terminated_out",
             "_truncated_out", "_stepper", "step")
 # Observation spaces whose samples are numpy arrays (or integers) of a fixed shape and dtype.
@@ -198,7 +199,7 @@ class RoutineActionWrapper(
                 self.action_space, obs_space.shape if record else None,
                 obs_space.dtype if record else None)
             # An instance attribute: `wrapper.step(a)` calls the core with no Python frame
-            # between (a third of the cost of a one-step call).
+            # between (~40 ns, a fifth of the overhead of a one-step call).
             self.step = self._stepper.step
 
     def __setattr__(self, name: str, value: Any) -> None:
