@@ -1,24 +1,31 @@
-// Compiled core of routine_gym.envs.minatar_vector for MinAtar's Breakout: all games of a vector
-// env stepped in one call, each through the primitive action or routine it was given.
+// Compiled core of routine_gym.envs.minatar_vector for MinAtar's Breakout and Space Invaders:
+// all games of a vector env stepped in one call, each through the primitive action or routine it
+// was given.
 //
-// MinAtar's Breakout (minatar/environments/breakout.py, Young & Tian 2019) is a few integer
-// updates per step; in Python each step of one game costs ~2 µs (the sticky-action draw, the
-// game's `act`, its boolean `state()` frame and the copy into the batch), which on a 16-game
-// vector env is a tenth of an A2C run. This file is the same game, line for line:
+// MinAtar's games (minatar/environments/*.py, Young & Tian 2019) are a few integer or 10×10
+// array updates per step; in Python each step of one game costs ~2 µs (Breakout) to ~17 µs
+// (Space Invaders, its numpy rolls and sums) for the sticky-action draw, the game's `act`, its
+// boolean `state()` frame and the copy into the batch, which on a 16-game vector env is up to
+// half of an A2C run. This file is the same games, line for line:
 //
-//   - `breakout_act` is `Env.act` (the paddle, the ball's diagonal move, its reflections off the
-//     walls, the bricks and the paddle, the brick refill when the wall is cleared, the end when
-//     the ball passes the paddle);
+//   - `Breakout::act` is breakout.py's `Env.act` (the paddle, the ball's diagonal move, its
+//     reflections off the walls, the bricks and the paddle, the brick refill when the wall is
+//     cleared, the end when the ball passes the paddle);
+//   - `SpaceInvaders::act` is space_invaders.py's `Env.act` (the cannon, its cool-down, the
+//     friendly bullets rolled up and the enemy bullets down, the aliens' march with its wrap
+//     around (np.roll), the nearest alien's shot, the kills, the timers, the new wave and the
+//     difficulty ramp);
 //   - the sticky action is `Environment.act`'s: one uniform draw per primitive step from the
 //     game's own `np.random.RandomState`, through numpy's `bitgen_t` (the same `next_double` that
 //     `RandomState.rand()` calls, so the game's random stream is shared with Python, draw for
-//     draw); the reset's `RandomState.randint(2)` is `next_uint32() & 1`, as numpy computes a
-//     masked bounded integer of range 1;
+//     draw); Breakout's reset's `RandomState.randint(2)` is `next_uint32() & 1`, as numpy
+//     computes a masked bounded integer of range 1 (Space Invaders' reset draws nothing);
 //   - `write_state` is `Env.state()` written straight into the agent's channels-first float32
-//     view (paddle, ball, trail, bricks).
+//     view.
 //
 // `tests/test_minatar_vector.py` compares every output with the Python path on fixed seeds and
-// actions, and single steps from arbitrary game states (the brick refill included).
+// actions, and single steps from arbitrary game states (Breakout's brick refill, Space
+// Invaders' new waves and ramp included).
 //
 // Python checks every argument (shapes, dtypes, contiguity, actions in range); this file checks
 // buffer sizes again so that a wrong call is an error, never a write outside an array.
@@ -29,6 +36,7 @@
 #include <cstdint>
 #include <cstring>
 #include <initializer_list>
+#include <string>
 
 #include "_pybuffers.h"
 
@@ -43,138 +51,321 @@ struct BitGen {
   uint64_t (*next_raw)(void* st);
 };
 
-// One game's variables, in the order of a row of the int32 `core` array.
-enum Field { kBallX, kBallY, kBallDir, kPos, kStrike, kLastX, kLastY, kLastAction, kFields };
 constexpr int kSize = 10;                       // the 10×10 board
 constexpr int kCells = kSize * kSize;
-constexpr int kChannels = 4;                    // paddle, ball, trail, brick
-constexpr int kFrame = kChannels * kCells;      // floats per observation
-constexpr int kLeft = 1, kRight = 3;            // MinAtar's action_map: n l u r d f
+constexpr int kLeft = 1, kRight = 3, kFire = 5;  // MinAtar's action_map: n l u r d f
 
-constexpr int kBounceX[4] = {1, 0, 3, 2};       // off a side wall
-constexpr int kBounceY[4] = {3, 2, 1, 0};       // off the top, a brick or the paddle's middle
-constexpr int kBouncePaddle[4] = {2, 3, 0, 1};  // off the paddle's edge
+// ---- Breakout ----------------------------------------------------------------------------------
 
-// Whether a game's variables are a state `Env.act` can step from: every position on the board,
-// a direction, a strike flag and a last action of MinAtar's six (a game edited by hand could
-// hold anything; stepping it would read and write outside the board).
-bool valid_state(const int32_t* g) {
-  for (int f : {kBallX, kBallY, kPos, kLastX, kLastY}) {
-    if (g[f] < 0 || g[f] > 9) return false;
-  }
-  return g[kBallDir] >= 0 && g[kBallDir] <= 3 && (g[kStrike] == 0 || g[kStrike] == 1) &&
-         g[kLastAction] >= 0 && g[kLastAction] <= 5;
-}
+struct Breakout {
+  // One game's variables, in the order of a row of the int32 `core` array; its map: the bricks.
+  enum Field { kBallX, kBallY, kBallDir, kPos, kStrike, kLastX, kLastY, kLastAction, kFields };
+  static constexpr int kMaps = 1;
+  static constexpr int kChannels = 4;  // paddle, ball, trail, brick
+  static constexpr const char* kInvalid =
+      "is not a Breakout state (a position off the 10x10 board, a direction outside 0-3 or an "
+      "action outside 0-5)";
+  static constexpr const char* kActError =
+      "the ball left the board at the bottom without ending the episode (a state no reset "
+      "leads to)";
 
-// `Env.act(a)`: returns the reward, or -1 where MinAtar's `act` raises IndexError (a ball in
-// the bottom row moving down, which no game played from a reset reaches); sets `*terminal`
-// when the ball passed the paddle.
-int breakout_act(int32_t* g, uint8_t* bricks, int64_t a, bool* terminal) {
-  int reward = 0;
-  if (a == kLeft) {
-    g[kPos] = g[kPos] > 0 ? g[kPos] - 1 : 0;
-  } else if (a == kRight) {
-    g[kPos] = g[kPos] < 9 ? g[kPos] + 1 : 9;
-  }
-  g[kLastX] = g[kBallX];
-  g[kLastY] = g[kBallY];
-  int dir = g[kBallDir];
-  int new_x = g[kBallX] + ((dir == 0 || dir == 3) ? -1 : 1);
-  int new_y = g[kBallY] + ((dir == 0 || dir == 1) ? -1 : 1);
+  static constexpr int kBounceX[4] = {1, 0, 3, 2};       // off a side wall
+  static constexpr int kBounceY[4] = {3, 2, 1, 0};       // off the top, a brick or the paddle
+  static constexpr int kBouncePaddle[4] = {2, 3, 0, 1};  // off the paddle's edge
 
-  if (new_y > 9) return -1;
-  bool strike_toggle = false;
-  if (new_x < 0 || new_x > 9) {
-    new_x = new_x < 0 ? 0 : 9;
-    dir = kBounceX[dir];
-  }
-  if (new_y < 0) {
-    new_y = 0;
-    dir = kBounceY[dir];
-  } else if (bricks[new_y * kSize + new_x] == 1) {
-    strike_toggle = true;
-    if (!g[kStrike]) {
-      reward += 1;
-      g[kStrike] = 1;
-      bricks[new_y * kSize + new_x] = 0;
-      new_y = g[kLastY];
-      dir = kBounceY[dir];
+  // Whether a game's variables are a state `Env.act` can step from: every position on the
+  // board, a direction, a strike flag and a last action of MinAtar's six (a game edited by hand
+  // could hold anything; stepping it would read and write outside the board).
+  static bool valid(const int32_t* g) {
+    for (int f : {kBallX, kBallY, kPos, kLastX, kLastY}) {
+      if (g[f] < 0 || g[f] > 9) return false;
     }
-  } else if (new_y == 9) {
-    bool cleared = true;
-    for (int c = 0; c < kCells; ++c) {
-      if (bricks[c] != 0) {
-        cleared = false;
-        break;
+    return g[kBallDir] >= 0 && g[kBallDir] <= 3 && (g[kStrike] == 0 || g[kStrike] == 1) &&
+           g[kLastAction] >= 0 && g[kLastAction] <= 5;
+  }
+
+  // `Env.act(a)`: returns the reward, or -1 where MinAtar's `act` raises IndexError (a ball in
+  // the bottom row moving down, which no game played from a reset reaches); sets `*terminal`
+  // when the ball passed the paddle.
+  static int act(int32_t* g, uint8_t* bricks, int64_t a, bool* terminal) {
+    int reward = 0;
+    if (a == kLeft) {
+      g[kPos] = g[kPos] > 0 ? g[kPos] - 1 : 0;
+    } else if (a == kRight) {
+      g[kPos] = g[kPos] < 9 ? g[kPos] + 1 : 9;
+    }
+    g[kLastX] = g[kBallX];
+    g[kLastY] = g[kBallY];
+    int dir = g[kBallDir];
+    int new_x = g[kBallX] + ((dir == 0 || dir == 3) ? -1 : 1);
+    int new_y = g[kBallY] + ((dir == 0 || dir == 1) ? -1 : 1);
+
+    if (new_y > 9) return -1;
+    bool strike_toggle = false;
+    if (new_x < 0 || new_x > 9) {
+      new_x = new_x < 0 ? 0 : 9;
+      dir = kBounceX[dir];
+    }
+    if (new_y < 0) {
+      new_y = 0;
+      dir = kBounceY[dir];
+    } else if (bricks[new_y * kSize + new_x] == 1) {
+      strike_toggle = true;
+      if (!g[kStrike]) {
+        reward += 1;
+        g[kStrike] = 1;
+        bricks[new_y * kSize + new_x] = 0;
+        new_y = g[kLastY];
+        dir = kBounceY[dir];
+      }
+    } else if (new_y == 9) {
+      bool cleared = true;
+      for (int c = 0; c < kCells; ++c) {
+        if (bricks[c] != 0) {
+          cleared = false;
+          break;
+        }
+      }
+      if (cleared) {
+        for (int c = kSize; c < 4 * kSize; ++c) bricks[c] = 1;  // rows 1..3
+      }
+      if (g[kBallX] == g[kPos]) {
+        dir = kBounceY[dir];
+        new_y = g[kLastY];
+      } else if (new_x == g[kPos]) {
+        dir = kBouncePaddle[dir];
+        new_y = g[kLastY];
+      } else {
+        *terminal = true;
       }
     }
-    if (cleared) {
-      for (int c = kSize; c < 4 * kSize; ++c) bricks[c] = 1;  // rows 1..3
+    if (!strike_toggle) g[kStrike] = 0;
+    g[kBallDir] = dir;
+    g[kBallX] = new_x;
+    g[kBallY] = new_y;
+    return reward;
+  }
+
+  // `Env.reset()` after `Environment.last_action = 0` (what `MinAtarEnv.reset()` does).
+  static void reset(int32_t* g, uint8_t* bricks, BitGen* rng) {
+    const bool right = (rng->next_uint32(rng->state) & 1u) != 0;  // RandomState.randint(2)
+    g[kBallY] = 3;
+    g[kBallX] = right ? 9 : 0;
+    g[kBallDir] = right ? 3 : 2;
+    g[kPos] = 4;
+    std::memset(bricks, 0, kCells);
+    std::memset(bricks + kSize, 1, 3 * kSize);
+    g[kStrike] = 0;
+    g[kLastX] = g[kBallX];
+    g[kLastY] = g[kBallY];
+    g[kLastAction] = 0;
+  }
+
+  // `Env.state()` as the agent's (channel, row, column) float32 frame.
+  static void write_state(const int32_t* g, const uint8_t* bricks, float* out) {
+    std::memset(out, 0, sizeof(float) * kChannels * kCells);
+    out[0 * kCells + 9 * kSize + g[kPos]] = 1.0f;
+    out[1 * kCells + g[kBallY] * kSize + g[kBallX]] = 1.0f;
+    out[2 * kCells + g[kLastY] * kSize + g[kLastX]] = 1.0f;
+    float* brick_channel = out + 3 * kCells;
+    for (int c = 0; c < kCells; ++c) brick_channel[c] = bricks[c] ? 1.0f : 0.0f;
+  }
+};
+
+// ---- Space Invaders ----------------------------------------------------------------------------
+
+struct SpaceInvaders {
+  // One game's variables (`terminal` and `ramping` as 0/1); its maps, each 10×10 of 0/1: the
+  // aliens, the friendly bullets, the enemy bullets.
+  enum Field { kPos, kAlienDir, kMoveInterval, kMoveTimer, kShotTimer, kRampIndex, kCoolDown,
+               kTerminal, kRamping, kLastAction, kFields };
+  static constexpr int kMaps = 3;
+  static constexpr int kChannels = 6;  // cannon, alien, alien_left, alien_right, bullets (f, e)
+  static constexpr const char* kInvalid =
+      "is not a Space Invaders state (the cannon off the 10x10 board, a flag other than 0 or 1 "
+      "or an action outside 0-5)";
+  static constexpr const char* kActError =
+      "an alien was to shoot but there is none (a state no reset leads to)";
+  static constexpr int kShotCoolDown = 5, kEnemyMoveInterval = 12, kEnemyShotInterval = 10;
+
+  static bool valid(const int32_t* g) {
+    return g[kPos] >= 0 && g[kPos] <= 9 && (g[kTerminal] == 0 || g[kTerminal] == 1) &&
+           (g[kRamping] == 0 || g[kRamping] == 1) && g[kLastAction] >= 0 &&
+           g[kLastAction] <= 5;
+  }
+
+  static int count(const uint8_t* map) {
+    int n = 0;
+    for (int c = 0; c < kCells; ++c) n += map[c];
+    return n;
+  }
+
+  static bool any_in_column(const uint8_t* map, int col) {
+    for (int r = 0; r < kSize; ++r) {
+      if (map[r * kSize + col]) return true;
     }
-    if (g[kBallX] == g[kPos]) {
-      dir = kBounceY[dir];
-      new_y = g[kLastY];
-    } else if (new_x == g[kPos]) {
-      dir = kBouncePaddle[dir];
-      new_y = g[kLastY];
-    } else {
-      *terminal = true;
+    return false;
+  }
+
+  // np.roll(map, shift, axis=0): row r takes row (r - shift) mod 10.
+  static void roll_rows(uint8_t* map, int shift) {
+    uint8_t old[kCells];
+    std::memcpy(old, map, kCells);
+    for (int r = 0; r < kSize; ++r) {
+      const int from = ((r - shift) % kSize + kSize) % kSize;
+      std::memcpy(map + r * kSize, old + from * kSize, kSize);
     }
   }
-  if (!strike_toggle) g[kStrike] = 0;
-  g[kBallDir] = dir;
-  g[kBallX] = new_x;
-  g[kBallY] = new_y;
-  return reward;
-}
 
-// `Env.reset()` after `Environment.last_action = 0` (what `MinAtarEnv.reset()` does).
-void breakout_reset(int32_t* g, uint8_t* bricks, BitGen* rng) {
-  const bool right = (rng->next_uint32(rng->state) & 1u) != 0;  // RandomState.randint(2)
-  g[kBallY] = 3;
-  g[kBallX] = right ? 9 : 0;
-  g[kBallDir] = right ? 3 : 2;
-  g[kPos] = 4;
-  std::memset(bricks, 0, kCells);
-  std::memset(bricks + kSize, 1, 3 * kSize);
-  g[kStrike] = 0;
-  g[kLastX] = g[kBallX];
-  g[kLastY] = g[kBallY];
-  g[kLastAction] = 0;
-}
+  // np.roll(map, shift, axis=1): column c takes column (c - shift) mod 10.
+  static void roll_columns(uint8_t* map, int shift) {
+    uint8_t old[kCells];
+    std::memcpy(old, map, kCells);
+    const int s = ((shift % kSize) + kSize) % kSize;
+    for (int r = 0; r < kSize; ++r) {
+      for (int c = 0; c < kSize; ++c) map[r * kSize + c] = old[r * kSize + (c - s + kSize) % kSize];
+    }
+  }
 
-// `Env.state()` as the agent's (channel, row, column) float32 frame.
-void write_state(const int32_t* g, const uint8_t* bricks, float* out) {
-  std::memset(out, 0, sizeof(float) * kFrame);
-  out[0 * kCells + 9 * kSize + g[kPos]] = 1.0f;
-  out[1 * kCells + g[kBallY] * kSize + g[kBallX]] = 1.0f;
-  out[2 * kCells + g[kLastY] * kSize + g[kLastX]] = 1.0f;
-  float* brick_channel = out + 3 * kCells;
-  for (int c = 0; c < kCells; ++c) brick_channel[c] = bricks[c] ? 1.0f : 0.0f;
-}
+  // `Env.act(a)`: returns the reward (the aliens shot this step), or -1 where MinAtar's `act`
+  // raises TypeError (an alien shot due with no alien left, which no game played from a
+  // reset reaches); sets `*terminal` when an alien or an enemy bullet reached the cannon.
+  static int act(int32_t* g, uint8_t* maps, int64_t a, bool* terminal) {
+    uint8_t* alien = maps;
+    uint8_t* f_bullet = maps + kCells;
+    uint8_t* e_bullet = maps + 2 * kCells;
+    if (g[kTerminal]) {
+      *terminal = true;
+      return 0;
+    }
+    int& pos = g[kPos];
+    if (a == kFire && g[kCoolDown] == 0) {
+      f_bullet[9 * kSize + pos] = 1;
+      g[kCoolDown] = kShotCoolDown;
+    } else if (a == kLeft) {
+      pos = pos > 0 ? pos - 1 : 0;
+    } else if (a == kRight) {
+      pos = pos < 9 ? pos + 1 : 9;
+    }
+    // Friendly bullets up, enemy bullets down (np.roll, then the wrapped row cleared).
+    roll_rows(f_bullet, -1);
+    std::memset(f_bullet + 9 * kSize, 0, kSize);
+    roll_rows(e_bullet, 1);
+    std::memset(e_bullet, 0, kSize);
+    if (e_bullet[9 * kSize + pos]) g[kTerminal] = 1;
+
+    if (alien[9 * kSize + pos]) g[kTerminal] = 1;
+    if (g[kMoveTimer] == 0) {
+      const int n = count(alien);
+      g[kMoveTimer] = n < g[kMoveInterval] ? n : g[kMoveInterval];
+      const int dir = g[kAlienDir];
+      if ((any_in_column(alien, 0) && dir < 0) || (any_in_column(alien, 9) && dir > 0)) {
+        g[kAlienDir] = -dir;
+        bool bottom = false;
+        for (int c = 0; c < kSize; ++c) bottom = bottom || alien[9 * kSize + c];
+        if (bottom) g[kTerminal] = 1;
+        roll_rows(alien, 1);
+      } else {
+        roll_columns(alien, dir);
+      }
+      if (alien[9 * kSize + pos]) g[kTerminal] = 1;
+    }
+    if (g[kShotTimer] == 0) {
+      g[kShotTimer] = kEnemyShotInterval;
+      // `_nearest_alien`: the columns by distance to the cannon (a stable sort: the left one
+      // first on a tie), the lowest alien of the first column that has one.
+      int shooter = -1;
+      for (int d = 0; d < kSize && shooter < 0; ++d) {
+        for (int col : {pos - d, pos + d}) {
+          if (col < 0 || col > 9 || (d == 0 && col != pos) || shooter >= 0) continue;
+          for (int r = kSize - 1; r >= 0; --r) {
+            if (alien[r * kSize + col]) {
+              shooter = r * kSize + col;
+              break;
+            }
+          }
+        }
+      }
+      if (shooter < 0) return -1;
+      e_bullet[shooter] = 1;
+    }
+    int reward = 0;
+    for (int c = 0; c < kCells; ++c) {
+      if (alien[c] && f_bullet[c]) {
+        ++reward;
+        alien[c] = f_bullet[c] = 0;
+      }
+    }
+    g[kCoolDown] -= g[kCoolDown] > 0;
+    g[kMoveTimer] -= 1;
+    g[kShotTimer] -= 1;
+    if (count(alien) == 0) {
+      if (g[kMoveInterval] > 6 && g[kRamping]) {
+        g[kMoveInterval] -= 1;
+        g[kRampIndex] += 1;
+      }
+      for (int r = 0; r < 4; ++r) std::memset(alien + r * kSize + 2, 1, 6);
+    }
+    *terminal = g[kTerminal] != 0;
+    return reward;
+  }
+
+  // `Env.reset()` after `Environment.last_action = 0`; it draws nothing.
+  static void reset(int32_t* g, uint8_t* maps, BitGen*) {
+    g[kPos] = 5;
+    std::memset(maps, 0, kMaps * kCells);
+    for (int r = 0; r < 4; ++r) std::memset(maps + r * kSize + 2, 1, 6);
+    g[kAlienDir] = -1;
+    g[kMoveInterval] = kEnemyMoveInterval;
+    g[kMoveTimer] = kEnemyMoveInterval;
+    g[kShotTimer] = kEnemyShotInterval;
+    g[kRampIndex] = 0;
+    g[kCoolDown] = 0;
+    g[kTerminal] = 0;
+    g[kLastAction] = 0;
+  }
+
+  static void write_state(const int32_t* g, const uint8_t* maps, float* out) {
+    std::memset(out, 0, sizeof(float) * kChannels * kCells);
+    out[0 * kCells + 9 * kSize + g[kPos]] = 1.0f;
+    const uint8_t* alien = maps;
+    float* direction = out + (g[kAlienDir] < 0 ? 2 : 3) * kCells;
+    for (int c = 0; c < kCells; ++c) {
+      out[1 * kCells + c] = alien[c];
+      direction[c] = alien[c];
+      out[4 * kCells + c] = maps[kCells + c];
+      out[5 * kCells + c] = maps[2 * kCells + c];
+    }
+  }
+};
 
 using routine_gym::Buffers;
 
-const char kStepDoc[] =
-    "breakout_step(core, bricks, rngs, sticky, actions, sequences, sequence_lengths, elapsed,\n"
-    "              limit, rewards, terminated, truncated, executed, step_rewards,\n"
-    "              inner_states, states, final_states)\n\n"
+const char kStepArgs[] =
+    "(core, maps, rngs, sticky, actions, sequences, sequence_lengths, elapsed, limit, rewards,\n"
+    "    terminated, truncated, executed, step_rewards, inner_states, states, final_states)\n\n"
     "Step every game once: its primitive action or routine, stopping at the end of an episode\n"
     "(terminated, or truncated at `limit` steps, -1 for none), resetting a game whose episode\n"
-    "ended. Arrays (C-contiguous, E games, A actions, L the longest sequence): core int32 (E, 8),\n"
-    "bricks uint8 (E, 10, 10), rngs uint64 (E,) bitgen_t addresses, actions int64 (E,),\n"
-    "sequences int64 (A, L), sequence_lengths int64 (A,), elapsed int64 (E,), rewards float64\n"
-    "(E,), terminated and truncated bool (E,), executed int64 (E,), step_rewards float64 (E, L)\n"
-    "or None, inner_states float32 (E, L, 4, 10, 10) or None, states and final_states float32\n"
-    "(E, 4, 10, 10).";
+    "ended. Arrays (C-contiguous, E games, A actions, L the longest sequence, F the game's\n"
+    "fields, M its maps, C its channels): core int32 (E, F), maps uint8 (E, M, 10, 10), rngs\n"
+    "uint64 (E,) bitgen_t addresses, actions int64 (E,), sequences int64 (A, L),\n"
+    "sequence_lengths int64 (A,), elapsed int64 (E,), rewards float64 (E,), terminated and\n"
+    "truncated bool (E,), executed int64 (E,), step_rewards float64 (E, L) or None,\n"
+    "inner_states float32 (E, L, C, 10, 10) or None, states and final_states float32\n"
+    "(E, C, 10, 10). Breakout: F 8, M 1 (bricks), C 4; Space Invaders: F 10, M 3 (aliens,\n"
+    "friendly bullets, enemy bullets), C 6.";
 
-PyObject* breakout_step(PyObject*, PyObject* args) {
-  PyObject *core_o, *bricks_o, *rngs_o, *actions_o, *sequences_o, *lengths_o, *elapsed_o;
+template <typename Game>
+PyObject* step_games(PyObject* args) {
+  constexpr int kFields = Game::kFields;
+  constexpr int kMapCells = Game::kMaps * kCells;
+  constexpr int kFrame = Game::kChannels * kCells;  // floats per observation
+  PyObject *core_o, *maps_o, *rngs_o, *actions_o, *sequences_o, *lengths_o, *elapsed_o;
   PyObject *rewards_o, *terminated_o, *truncated_o, *executed_o, *step_rewards_o, *inner_o;
   PyObject *states_o, *final_o;
   double sticky;
   long long limit;
-  if (!PyArg_ParseTuple(args, "OOOdOOOOLOOOOOOOO", &core_o, &bricks_o, &rngs_o, &sticky,
+  if (!PyArg_ParseTuple(args, "OOOdOOOOLOOOOOOOO", &core_o, &maps_o, &rngs_o, &sticky,
                         &actions_o, &sequences_o, &lengths_o, &elapsed_o, &limit, &rewards_o,
                         &terminated_o, &truncated_o, &executed_o, &step_rewards_o, &inner_o,
                         &states_o, &final_o)) {
@@ -200,8 +391,8 @@ PyObject* breakout_step(PyObject*, PyObject* args) {
 
   auto* core = static_cast<int32_t*>(b.get(core_o, e * kFields * 4, true, "core"));
   if (!core) return nullptr;
-  auto* bricks = static_cast<uint8_t*>(b.get(bricks_o, e * kCells, true, "bricks"));
-  if (!bricks) return nullptr;
+  auto* maps = static_cast<uint8_t*>(b.get(maps_o, e * kMapCells, true, "maps"));
+  if (!maps) return nullptr;
   auto* rngs = static_cast<const uint64_t*>(b.get(rngs_o, e * 8, false, "rngs"));
   if (!rngs) return nullptr;
   auto* elapsed = static_cast<int64_t*>(b.get(elapsed_o, e * 8, true, "elapsed"));
@@ -240,9 +431,8 @@ PyObject* breakout_step(PyObject*, PyObject* args) {
       PyErr_SetString(PyExc_ValueError, "a game has no random number generator");
       return nullptr;
     }
-    if (!valid_state(core + i * kFields)) {
-      PyErr_Format(PyExc_ValueError, "game %zd is not a Breakout state (a position off the "
-                   "10x10 board, a direction outside 0-3 or an action outside 0-5)", i);
+    if (!Game::valid(core + i * kFields)) {
+      PyErr_Format(PyExc_ValueError, "game %zd %s", i, Game::kInvalid);
       return nullptr;
     }
   }
@@ -255,7 +445,7 @@ PyObject* breakout_step(PyObject*, PyObject* args) {
 
   for (Py_ssize_t i = 0; i < e; ++i) {
     int32_t* g = core + i * kFields;
-    uint8_t* board = bricks + i * kCells;
+    uint8_t* board = maps + i * kMapCells;
     auto* rng = reinterpret_cast<BitGen*>(static_cast<uintptr_t>(rngs[i]));
     const int64_t a = actions[i];
     const int64_t* sequence = sequences + a * max_len;
@@ -264,19 +454,18 @@ PyObject* breakout_step(PyObject*, PyObject* args) {
     int64_t k = 0;
     for (const int64_t length = seq_lengths[a]; k < length;) {
       int64_t primitive = sequence[k];
-      if (rng->next_double(rng->state) < sticky) primitive = g[kLastAction];
-      g[kLastAction] = static_cast<int32_t>(primitive);
-      const int reward = breakout_act(g, board, primitive, &term);
+      if (rng->next_double(rng->state) < sticky) primitive = g[Game::kLastAction];
+      g[Game::kLastAction] = static_cast<int32_t>(primitive);
+      const int reward = Game::act(g, board, primitive, &term);
       if (reward < 0) {
-        PyErr_Format(PyExc_ValueError, "game %zd: the ball left the board at the bottom "
-                     "without ending the episode (a state no reset leads to)", i);
+        PyErr_Format(PyExc_ValueError, "game %zd: %s", i, Game::kActError);
         return nullptr;
       }
       elapsed[i] += 1;
       trunc = limit >= 0 && elapsed[i] >= limit;
       total += reward;
       if (step_rewards) step_rewards[i * max_len + k] = reward;
-      if (inner) write_state(g, board, inner + (i * max_len + k) * kFrame);
+      if (inner) Game::write_state(g, board, inner + (i * max_len + k) * kFrame);
       ++k;
       if (term || trunc) break;
     }
@@ -285,23 +474,33 @@ PyObject* breakout_step(PyObject*, PyObject* args) {
     truncated[i] = trunc;
     executed[i] = k;
     if (term || trunc) {
-      write_state(g, board, final_states + i * kFrame);
-      breakout_reset(g, board, rng);
+      Game::write_state(g, board, final_states + i * kFrame);
+      Game::reset(g, board, rng);
       elapsed[i] = 0;
     }
-    write_state(g, board, states + i * kFrame);
+    Game::write_state(g, board, states + i * kFrame);
   }
   Py_RETURN_NONE;
 }
 
+PyObject* breakout_step(PyObject*, PyObject* args) { return step_games<Breakout>(args); }
+PyObject* space_invaders_step(PyObject*, PyObject* args) {
+  return step_games<SpaceInvaders>(args);
+}
+
+const std::string kBreakoutDoc = std::string("breakout_step") + kStepArgs;
+const std::string kSpaceInvadersDoc = std::string("space_invaders_step") + kStepArgs;
+
 PyMethodDef kMethods[] = {
-    {"breakout_step", breakout_step, METH_VARARGS, kStepDoc},
+    {"breakout_step", breakout_step, METH_VARARGS, kBreakoutDoc.c_str()},
+    {"space_invaders_step", space_invaders_step, METH_VARARGS, kSpaceInvadersDoc.c_str()},
     {nullptr, nullptr, 0, nullptr},
 };
 
 PyModuleDef kModule = {
     PyModuleDef_HEAD_INIT, "_minatar_core",
-    "Compiled MinAtar Breakout for routine_gym.envs.minatar_vector (see the source's header).",
+    "Compiled MinAtar Breakout and Space Invaders for routine_gym.envs.minatar_vector (see the "
+    "source's header).",
     -1, kMethods, nullptr, nullptr, nullptr, nullptr,
 };
 

@@ -10,6 +10,8 @@ import routine_gym  # noqa: F401  (registers the MinAtar ids)
 from routine_gym.envs.factory import make_vector_env
 from routine_gym.envs.minatar_vector import MinAtarVectorEnv
 
+COMPILED_IDS = ("MinAtar/Breakout-v1", "MinAtar/SpaceInvaders-v1")
+
 
 def _flat(info: dict, prefix: str = "") -> dict:
     out = {}
@@ -33,8 +35,9 @@ def _assert_same_steps(env_id, routines, record, env_kwargs, steps, num_envs=6, 
     python = make_vector_env(env_id, num_envs, routines=routines, record_observations=record,
                              env_kwargs=env_kwargs, batched=False)
     assert isinstance(batched, MinAtarVectorEnv)
-    # Breakout runs in the compiled core unless told otherwise; the other games in Python.
-    assert batched.compiled == (compiled is not False and env_id == "MinAtar/Breakout-v1")
+    # Breakout and Space Invaders run in the compiled core unless told otherwise; the other
+    # games in Python.
+    assert batched.compiled == (compiled is not False and env_id in COMPILED_IDS)
     assert isinstance(python, gym.vector.SyncVectorEnv)
     assert batched.single_observation_space == python.single_observation_space
     assert batched.single_action_space == python.single_action_space
@@ -116,7 +119,7 @@ def _set_state(envs, i, state):
         if key == "last_action":
             environment.last_action = value
         else:
-            setattr(game, key, value.copy() if key == "brick_map" else value)
+            setattr(game, key, value.copy() if isinstance(value, np.ndarray) else value)
 
 
 def _draw_state(rng):
@@ -161,6 +164,84 @@ def test_the_compiled_core_steps_any_breakout_state_as_minatar_does(sticky):
             refills += int(cleared[i] and after[3].any())
         ends += int(done.sum())
     assert refills > 10 and ends > 100  # both branches were compared, many times
+
+
+def _invaders_pair(num_envs, sticky, ramping=True):
+    kwargs = {"sticky_action_prob": sticky, "difficulty_ramping": ramping}
+    pair = [MinAtarVectorEnv("MinAtar/SpaceInvaders-v1", num_envs, env_kwargs=kwargs,
+                             compiled=c) for c in (True, False)]
+    for envs in pair:
+        envs.reset(seed=11)
+    return pair
+
+
+def _draw_invaders_state(rng):
+    """A Space Invaders state: aliens anywhere above the cannon's row (one to a handful a third
+    of the time, so that a wave is often cleared), bullets anywhere, the cannon anywhere, the
+    march at any point of its timers (often due this step), either direction."""
+    aliens = np.zeros((10, 10))
+    if rng.random() < 1 / 3:
+        for _ in range(int(rng.integers(1, 4))):
+            aliens[rng.integers(9), rng.integers(10)] = 1
+    else:
+        aliens[:9] = rng.random((9, 10)) < 0.3
+        aliens[rng.integers(9), rng.integers(10)] = 1  # at least one alien
+    return {"alien_map": aliens, "f_bullet_map": (rng.random((10, 10)) < 0.15) * 1.0,
+            "e_bullet_map": (rng.random((10, 10)) < 0.15) * 1.0,
+            "pos": int(rng.integers(10)), "alien_dir": int(rng.choice([-1, 1])),
+            "enemy_move_interval": int(rng.integers(5, 13)),
+            "alien_move_timer": int(rng.integers(0, 3)),
+            "alien_shot_timer": int(rng.integers(0, 3)),
+            "ramp_index": int(rng.integers(0, 4)), "shot_timer": int(rng.integers(0, 6)),
+            "last_action": int(rng.choice([0, 1, 3, 5]))}
+
+
+@pytest.mark.parametrize("sticky,ramping", [(0.0, True), (0.3, True), (0.1, False)])
+def test_the_compiled_core_steps_any_space_invaders_state_as_minatar_does(sticky, ramping):
+    # From states drawn anywhere (aliens at the walls and in the cannon's row, a march or a
+    # shot due, a wave cleared by this step's kills), one step of each action in the compiled
+    # core against MinAtar's own `act` and `state`, in both directions of the march.
+    compiled, python = _invaders_pair(8, sticky, ramping)
+    rng = np.random.default_rng(1)
+    waves = ramps = ends = kills = 0
+    for _ in range(300):
+        for i in range(8):
+            state = _draw_invaders_state(rng)
+            _set_state(compiled, i, state)
+            _set_state(python, i, state)
+        compiled._load_core()
+        actions = rng.integers(0, 4, 8)
+        intervals = [g.env.enemy_move_interval for g in python._games]
+        out_c, out_p = compiled.step(actions), python.step(actions)
+        for b, p in zip(out_c[:4], out_p[:4], strict=True):
+            assert b.dtype == p.dtype and np.array_equal(b, p)
+        done = out_p[2] | out_p[3]
+        for i in np.flatnonzero(done):
+            assert np.array_equal(out_c[4]["final_obs"][i], out_p[4]["final_obs"][i])
+        for i in np.flatnonzero(~done):  # the games' variables too, where they go on
+            for key in ("enemy_move_interval", "alien_move_timer", "alien_shot_timer",
+                        "ramp_index", "shot_timer", "alien_dir"):
+                core_value = compiled._core[i, compiled._core_fields.index(key)]
+                assert core_value == getattr(python._games[i].env, key), key
+            new_wave = python._games[i].env.alien_map[:4, 2:8].all() and \
+                python._games[i].env.alien_map.sum() == 24
+            waves += int(new_wave)
+            ramps += int(python._games[i].env.enemy_move_interval < intervals[i])
+        ends += int(done.sum())
+        kills += int((out_p[1] > 0).sum())
+    assert waves > 10 and ends > 100 and kills > 100
+    assert (ramps > 10) == ramping
+
+
+def test_the_compiled_core_refuses_a_space_invaders_shot_with_no_alien():
+    # MinAtar's own `act` raises TypeError from such a state; the core says what happened.
+    envs = MinAtarVectorEnv("MinAtar/SpaceInvaders-v1", 1,
+                            env_kwargs={"sticky_action_prob": 0.0}, compiled=True)
+    envs.reset(seed=0)
+    _set_state(envs, 0, {"alien_map": np.zeros((10, 10)), "alien_shot_timer": 0})
+    envs._load_core()
+    with pytest.raises(ValueError, match="game 0: an alien was to shoot but there is none"):
+        envs.step(np.array([0]))
 
 
 def test_the_compiled_core_shares_each_games_random_stream_with_python():

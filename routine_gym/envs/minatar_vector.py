@@ -17,11 +17,12 @@ once:
   episode ended, each with its `_key` mask, exactly as `SyncVectorEnv` with same-step autoreset
   arranges them.
 
-Breakout has a compiled core (`routine_gym/_minatar_core.cpp`, built by `pip install`): the
-same game, its sticky actions drawn from each game's own `RandomState`, stepped for all games in
-one C++ call that writes the observations straight into the float32 batch. A step of 16 games
-then costs a few microseconds instead of ~50. The other four games (and Breakout with
-`compiled=False`, or where the module was not built) go through the Python loop.
+Breakout and Space Invaders have a compiled core (`routine_gym/_minatar_core.cpp`, built by
+`pip install`): the same game, its sticky actions drawn from each game's own `RandomState`,
+stepped for all games in one C++ call that writes the observations straight into the float32
+batch. A step of 16 games then costs about 10 µs instead of ~50 (Breakout) or ~270 (Space
+Invaders). The other three games (and these two with `compiled=False`, or where the module was
+not built) go through the Python loop.
 
 `tests/test_minatar_vector.py` checks, on fixed seeds and actions, that it returns what the
 Python path returns (observations, rewards, flags and every info array), for plain actions and
@@ -49,10 +50,18 @@ except ImportError:  # not built (a source checkout without `pip install`): the 
 
 __all__ = ["MinAtarVectorEnv"]
 
+#: Per game with a compiled core (by MinAtar's name): the game's variables in the order of a
+#: row of the core's int32 array (`_minatar_core.cpp`'s `Field`, the last action after them),
+#: its 10×10 maps in the order of the core's uint8 maps, and the core's step function.
+_CORES = {
+    "breakout": (("ball_x", "ball_y", "ball_dir", "pos", "strike", "last_x", "last_y"),
+                 ("brick_map",), "breakout_step"),
+    "space_invaders": (("pos", "alien_dir", "enemy_move_interval", "alien_move_timer",
+                        "alien_shot_timer", "ramp_index", "shot_timer", "terminal", "ramping"),
+                       ("alien_map", "f_bullet_map", "e_bullet_map"), "space_invaders_step"),
+}
 #: The games with a compiled core, by MinAtar's name.
-COMPILED_GAMES = ("breakout",)
-# A row of the compiled core's int32 game array (`_minatar_core.cpp`'s `Field`).
-_CORE_FIELDS = ("ball_x", "ball_y", "ball_dir", "pos", "strike", "last_x", "last_y")
+COMPILED_GAMES = tuple(_CORES)
 
 
 class MinAtarVectorEnv(VectorEnv):
@@ -80,10 +89,10 @@ class MinAtarVectorEnv(VectorEnv):
             ``info["routine_observations"]``.
         env_kwargs: `gym.make` keyword arguments (`sticky_action_prob`, `difficulty_ramping`,
             `max_episode_steps`).
-        compiled: step the games in the compiled core (Breakout only): None uses it where the
-            game has one and it was built, True requires it, False keeps the Python loop. With
-            the core the games' state lives in it between resets: reseed and reset them through
-            this env's `reset`, not through `games[i]`.
+        compiled: step the games in the compiled core (Breakout and Space Invaders): None uses
+            it where the game has one and it was built, True requires it, False keeps the Python
+            loop. With the core the games' state lives in it between resets: reseed and reset
+            them through this env's `reset`, not through `games[i]`.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}
@@ -144,8 +153,10 @@ class MinAtarVectorEnv(VectorEnv):
         if self.compiled:
             # The games' state lives in these arrays between resets (`_load_core`); each game's
             # sticky action is drawn from its own RandomState, kept alive here.
-            self._core = np.zeros((num_envs, len(_CORE_FIELDS) + 1), dtype=np.int32)
-            self._bricks = np.zeros((num_envs, h, w), dtype=np.uint8)
+            self._core_fields, self._core_maps, step_name = _CORES[game_name]
+            self._core_step = getattr(_minatar_core, step_name)
+            self._core = np.zeros((num_envs, len(self._core_fields) + 1), dtype=np.int32)
+            self._maps = np.zeros((num_envs, len(self._core_maps), h, w), dtype=np.uint8)
             self._rng_owners: list[np.random.BitGenerator] = []
             self._core_sequences = padded_actions(self._sequences, self.max_routine_length)
             self._core_lengths = np.array([len(seq) for seq in self._sequences], dtype=np.int64)
@@ -197,11 +208,13 @@ class MinAtarVectorEnv(VectorEnv):
 
     def _load_core(self) -> None:
         """Copy the games' state (after their reset in Python) into the compiled core's arrays."""
+        fields = self._core_fields
         for i, environment in enumerate(self._games):
             game = environment.env
-            self._core[i, : len(_CORE_FIELDS)] = [int(getattr(game, f)) for f in _CORE_FIELDS]
-            self._core[i, len(_CORE_FIELDS)] = int(environment.last_action)
-            self._bricks[i] = game.brick_map != 0
+            self._core[i, : len(fields)] = [int(getattr(game, f)) for f in fields]
+            self._core[i, len(fields)] = int(environment.last_action)
+            for k, name in enumerate(self._core_maps):
+                self._maps[i, k] = getattr(game, name) != 0
         # The bit generators themselves (a RandomState can swap its own for a new one).
         self._rng_owners = [environment.random._bit_generator for environment in self._games]
         self._rngs = self._rng_addresses()
@@ -338,8 +351,8 @@ class MinAtarVectorEnv(VectorEnv):
         inner = np.zeros((e, length, *view), dtype=np.float32) if record else None
         states = np.empty((e, *view), dtype=np.float32)
         final_states = self._final_scratch  # the ended games' rows are copied out below
-        _minatar_core.breakout_step(
-            self._core, self._bricks, self._rngs, self._sticky,
+        self._core_step(
+            self._core, self._maps, self._rngs, self._sticky,
             np.ascontiguousarray(actions, dtype=np.int64), self._core_sequences,
             self._core_lengths, self._elapsed, self._limit, rewards, terminated, truncated,
             executed, step_rewards, inner, states, final_states)
