@@ -53,7 +53,7 @@ struct BitGen {
 
 constexpr int kSize = 10;                       // the 10×10 board
 constexpr int kCells = kSize * kSize;
-constexpr int kLeft = 1, kRight = 3, kFire = 5;  // MinAtar's action_map: n l u r d f
+constexpr int kLeft = 1, kUp = 2, kRight = 3, kDown = 4, kFire = 5;  // n l u r d f
 
 // ---- Breakout ----------------------------------------------------------------------------------
 
@@ -87,7 +87,7 @@ struct Breakout {
   // `Env.act(a)`: returns the reward, or -1 where MinAtar's `act` raises IndexError (a ball in
   // the bottom row moving down, which no game played from a reset reaches); sets `*terminal`
   // when the ball passed the paddle.
-  static int act(int32_t* g, uint8_t* bricks, int64_t a, bool* terminal) {
+  static int act(int32_t* g, uint8_t* bricks, int64_t a, bool* terminal, BitGen*) {
     int reward = 0;
     if (a == kLeft) {
       g[kPos] = g[kPos] > 0 ? g[kPos] - 1 : 0;
@@ -230,7 +230,7 @@ struct SpaceInvaders {
   // `Env.act(a)`: returns the reward (the aliens shot this step), or -1 where MinAtar's `act`
   // raises TypeError (an alien shot due with no alien left, which no game played from a
   // reset reaches); sets `*terminal` when an alien or an enemy bullet reached the cannon.
-  static int act(int32_t* g, uint8_t* maps, int64_t a, bool* terminal) {
+  static int act(int32_t* g, uint8_t* maps, int64_t a, bool* terminal, BitGen*) {
     uint8_t* alien = maps;
     uint8_t* f_bullet = maps + kCells;
     uint8_t* e_bullet = maps + 2 * kCells;
@@ -339,6 +339,133 @@ struct SpaceInvaders {
   }
 };
 
+// ---- Freeway ----------------------------------------------------------------------------------
+
+struct Freeway {
+  // One game's variables, then its 8 cars' [x, y, timer, speed] (speed signed by direction),
+  // then the last action; no maps.
+  enum Field { kPos, kMoveTimer, kTerminateTimer, kTerminal, kCars, kLastAction = kCars + 32,
+               kFields };
+  static constexpr int kMaps = 0;
+  static constexpr int kChannels = 7;  // chicken, car, the trail of speed 1 to 5
+  static constexpr const char* kInvalid =
+      "is not a Freeway state (the chicken or a car off the 10x10 board, a car's speed outside "
+      "1-5 either way, a flag other than 0 or 1 or an action outside 0-5)";
+  static constexpr const char* kActError = "";  // its act cannot fail
+  static constexpr int kPlayerSpeed = 3, kTimeLimit = 2500;
+
+  static bool valid(const int32_t* g) {
+    if (g[kPos] < 0 || g[kPos] > 9 || (g[kTerminal] != 0 && g[kTerminal] != 1) ||
+        g[kLastAction] < 0 || g[kLastAction] > 5) {
+      return false;
+    }
+    for (int i = 0; i < 8; ++i) {
+      const int32_t* car = g + kCars + 4 * i;
+      const int speed = car[3] < 0 ? -car[3] : car[3];
+      if (car[0] < 0 || car[0] > 9 || car[1] < 0 || car[1] > 9 || speed < 1 || speed > 5) {
+        return false;
+      }
+    }
+    return true;
+  }
+
+  // `_randomize_cars`: `randint(1, 6, 8)` (numpy's masked bounded integers: `next_uint32() & 7`
+  // until at most 4, plus 1), then `sign(rand(8) - 0.5)`.
+  static void randomize_cars(int32_t* g, BitGen* rng, bool initialize) {
+    int32_t speeds[8];
+    for (auto& speed : speeds) {
+      uint32_t v;
+      do {
+        v = rng->next_uint32(rng->state) & 7u;
+      } while (v > 4u);
+      speed = static_cast<int32_t>(v) + 1;
+    }
+    for (auto& speed : speeds) {
+      const double x = rng->next_double(rng->state) - 0.5;
+      speed *= x > 0 ? 1 : (x < 0 ? -1 : 0);
+    }
+    for (int i = 0; i < 8; ++i) {
+      int32_t* car = g + kCars + 4 * i;
+      if (initialize) {
+        car[0] = 0;
+        car[1] = i + 1;
+      }
+      car[2] = speeds[i] < 0 ? -speeds[i] : speeds[i];
+      car[3] = speeds[i];
+    }
+  }
+
+  static int act(int32_t* g, uint8_t*, int64_t a, bool* terminal, BitGen* rng) {
+    if (g[kTerminal]) {
+      *terminal = true;
+      return 0;
+    }
+    int reward = 0;
+    int& pos = g[kPos];
+    if (a == kUp && g[kMoveTimer] == 0) {
+      g[kMoveTimer] = kPlayerSpeed;
+      pos = pos > 0 ? pos - 1 : 0;
+    } else if (a == kDown && g[kMoveTimer] == 0) {
+      g[kMoveTimer] = kPlayerSpeed;
+      pos = pos < 9 ? pos + 1 : 9;
+    }
+    if (pos == 0) {
+      reward += 1;
+      randomize_cars(g, rng, false);
+      pos = 9;
+    }
+    for (int i = 0; i < 8; ++i) {
+      int32_t* car = g + kCars + 4 * i;
+      if (car[0] == 4 && car[1] == pos) pos = 9;
+      if (car[2] == 0) {
+        car[2] = car[3] < 0 ? -car[3] : car[3];
+        car[0] += car[3] > 0 ? 1 : -1;
+        if (car[0] < 0) {
+          car[0] = 9;
+        } else if (car[0] > 9) {
+          car[0] = 0;
+        }
+        if (car[0] == 4 && car[1] == pos) pos = 9;
+      } else {
+        car[2] -= 1;
+      }
+    }
+    g[kMoveTimer] -= g[kMoveTimer] > 0;
+    g[kTerminateTimer] -= 1;
+    if (g[kTerminateTimer] < 0) g[kTerminal] = 1;
+    *terminal = g[kTerminal] != 0;
+    return reward;
+  }
+
+  static void reset(int32_t* g, uint8_t*, BitGen* rng) {
+    randomize_cars(g, rng, true);
+    g[kPos] = 9;
+    g[kMoveTimer] = kPlayerSpeed;
+    g[kTerminateTimer] = kTimeLimit;
+    g[kTerminal] = 0;
+    g[kLastAction] = 0;
+  }
+
+  static void write_state(const int32_t* g, const uint8_t*, float* out) {
+    std::memset(out, 0, sizeof(float) * kChannels * kCells);
+    out[0 * kCells + g[kPos] * kSize + 4] = 1.0f;
+    int trail = -1;  // as in `state()`, a car of speed 0 (never drawn) keeps the last trail
+    for (int i = 0; i < 8; ++i) {
+      const int32_t* car = g + kCars + 4 * i;
+      out[1 * kCells + car[1] * kSize + car[0]] = 1.0f;
+      int back_x = car[3] > 0 ? car[0] - 1 : car[0] + 1;
+      if (back_x < 0) {
+        back_x = 9;
+      } else if (back_x > 9) {
+        back_x = 0;
+      }
+      const int speed = car[3] < 0 ? -car[3] : car[3];
+      if (speed >= 1 && speed <= 5) trail = 1 + speed;
+      if (trail >= 0) out[trail * kCells + car[1] * kSize + back_x] = 1.0f;
+    }
+  }
+};
+
 using routine_gym::Buffers;
 
 const char kStepArgs[] =
@@ -353,7 +480,7 @@ const char kStepArgs[] =
     "truncated bool (E,), executed int64 (E,), step_rewards float64 (E, L) or None,\n"
     "inner_states float32 (E, L, C, 10, 10) or None, states and final_states float32\n"
     "(E, C, 10, 10). Breakout: F 8, M 1 (bricks), C 4; Space Invaders: F 10, M 3 (aliens,\n"
-    "friendly bullets, enemy bullets), C 6.";
+    "friendly bullets, enemy bullets), C 6; Freeway: F 37 (4 variables, 8 cars of 4), M 0, C 7.";
 
 template <typename Game>
 PyObject* step_games(PyObject* args) {
@@ -456,7 +583,7 @@ PyObject* step_games(PyObject* args) {
       int64_t primitive = sequence[k];
       if (rng->next_double(rng->state) < sticky) primitive = g[Game::kLastAction];
       g[Game::kLastAction] = static_cast<int32_t>(primitive);
-      const int reward = Game::act(g, board, primitive, &term);
+      const int reward = Game::act(g, board, primitive, &term, rng);
       if (reward < 0) {
         PyErr_Format(PyExc_ValueError, "game %zd: %s", i, Game::kActError);
         return nullptr;
@@ -487,20 +614,23 @@ PyObject* breakout_step(PyObject*, PyObject* args) { return step_games<Breakout>
 PyObject* space_invaders_step(PyObject*, PyObject* args) {
   return step_games<SpaceInvaders>(args);
 }
+PyObject* freeway_step(PyObject*, PyObject* args) { return step_games<Freeway>(args); }
 
 const std::string kBreakoutDoc = std::string("breakout_step") + kStepArgs;
 const std::string kSpaceInvadersDoc = std::string("space_invaders_step") + kStepArgs;
+const std::string kFreewayDoc = std::string("freeway_step") + kStepArgs;
 
 PyMethodDef kMethods[] = {
     {"breakout_step", breakout_step, METH_VARARGS, kBreakoutDoc.c_str()},
     {"space_invaders_step", space_invaders_step, METH_VARARGS, kSpaceInvadersDoc.c_str()},
+    {"freeway_step", freeway_step, METH_VARARGS, kFreewayDoc.c_str()},
     {nullptr, nullptr, 0, nullptr},
 };
 
 PyModuleDef kModule = {
     PyModuleDef_HEAD_INIT, "_minatar_core",
-    "Compiled MinAtar Breakout and Space Invaders for routine_gym.envs.minatar_vector (see the "
-    "source's header).",
+    "Compiled MinAtar Breakout, Space Invaders and Freeway for routine_gym.envs.minatar_vector "
+    "(see the source's header).",
     -1, kMethods, nullptr, nullptr, nullptr, nullptr,
 };
 

@@ -10,7 +10,7 @@ import routine_gym  # noqa: F401  (registers the MinAtar ids)
 from routine_gym.envs.factory import make_vector_env
 from routine_gym.envs.minatar_vector import MinAtarVectorEnv
 
-COMPILED_IDS = ("MinAtar/Breakout-v1", "MinAtar/SpaceInvaders-v1")
+COMPILED_IDS = ("MinAtar/Breakout-v1", "MinAtar/SpaceInvaders-v1", "MinAtar/Freeway-v1")
 
 
 def _flat(info: dict, prefix: str = "") -> dict:
@@ -35,8 +35,8 @@ def _assert_same_steps(env_id, routines, record, env_kwargs, steps, num_envs=6, 
     python = make_vector_env(env_id, num_envs, routines=routines, record_observations=record,
                              env_kwargs=env_kwargs, batched=False)
     assert isinstance(batched, MinAtarVectorEnv)
-    # Breakout and Space Invaders run in the compiled core unless told otherwise; the other
-    # games in Python.
+    # Breakout, Space Invaders and Freeway run in the compiled core unless told otherwise; the
+    # other games in Python.
     assert batched.compiled == (compiled is not False and env_id in COMPILED_IDS)
     assert isinstance(python, gym.vector.SyncVectorEnv)
     assert batched.single_observation_space == python.single_observation_space
@@ -242,6 +242,59 @@ def test_the_compiled_core_refuses_a_space_invaders_shot_with_no_alien():
     envs._load_core()
     with pytest.raises(ValueError, match="game 0: an alien was to shoot but there is none"):
         envs.step(np.array([0]))
+
+
+def _draw_freeway_state(rng):
+    """A Freeway state: the chicken anywhere (often one row from the top, so that a crossing
+    redraws the cars), its move timer and the game's clock at any point (often about to end),
+    cars anywhere in their lanes at any speed either way, their timers often due."""
+    cars = [[int(rng.integers(10)), lane + 1, int(rng.integers(0, 3)),
+             int(rng.integers(1, 6)) * int(rng.choice([-1, 1]))] for lane in range(8)]
+    return {"pos": 1 if rng.random() < 0.4 else int(rng.integers(10)),
+            "move_timer": int(rng.integers(0, 4)),
+            "terminate_timer": int(rng.integers(0, 3)) if rng.random() < 0.2 else 2500,
+            "cars": cars, "last_action": int(rng.choice([0, 2, 4]))}
+
+
+@pytest.mark.parametrize("sticky", [0.0, 0.3])
+def test_the_compiled_core_steps_any_freeway_state_as_minatar_does(sticky):
+    # From states drawn anywhere (a crossing that redraws the cars from the game's generator,
+    # cars hitting the chicken before and after they move, wrapping round, the clock running
+    # out), one step of each action against MinAtar's own `act` and `state`; the games'
+    # variables and their generators' states after it too.
+    kwargs = {"sticky_action_prob": sticky}
+    compiled, python = (MinAtarVectorEnv("MinAtar/Freeway-v1", 8, env_kwargs=kwargs,
+                                         compiled=c) for c in (True, False))
+    for envs in (compiled, python):
+        envs.reset(seed=11)
+    rng = np.random.default_rng(2)
+    crossings = ends = hits = 0
+    for _ in range(300):
+        for i in range(8):
+            state = _draw_freeway_state(rng)
+            _set_state(compiled, i, {**state, "cars": [list(c) for c in state["cars"]]})
+            _set_state(python, i, {**state, "cars": [list(c) for c in state["cars"]]})
+        compiled._load_core()
+        actions = rng.integers(0, 3, 8)
+        before = [g.env.pos for g in python._games]
+        out_c, out_p = compiled.step(actions), python.step(actions)
+        for b, p in zip(out_c[:4], out_p[:4], strict=True):
+            assert b.dtype == p.dtype and np.array_equal(b, p)
+        done = out_p[2] | out_p[3]
+        for i in range(8):
+            if done[i]:
+                assert np.array_equal(out_c[4]["final_obs"][i], out_p[4]["final_obs"][i])
+            else:
+                game = python._games[i].env
+                row = [game.pos, game.move_timer, game.terminate_timer, int(game.terminal),
+                       *[v for car in game.cars for v in car], python._games[i].last_action]
+                assert compiled._core[i].tolist() == row
+                hits += int(game.pos == 9 and before[i] not in (8, 9) and out_p[1][i] == 0)
+            c_state, p_state = (e._games[i].random.get_state() for e in (compiled, python))
+            assert c_state[2] == p_state[2] and np.array_equal(c_state[1], p_state[1])
+        ends += int(done.sum())
+        crossings += int((out_p[1] > 0).sum())
+    assert crossings > 100 and ends > 100 and hits > 100
 
 
 def test_the_compiled_core_shares_each_games_random_stream_with_python():

@@ -17,12 +17,13 @@ once:
   episode ended, each with its `_key` mask, exactly as `SyncVectorEnv` with same-step autoreset
   arranges them.
 
-Breakout and Space Invaders have a compiled core (`routine_gym/_minatar_core.cpp`, built by
-`pip install`): the same game, its sticky actions drawn from each game's own `RandomState`,
-stepped for all games in one C++ call that writes the observations straight into the float32
-batch. A step of 16 games then costs about 10 µs instead of ~50 (Breakout) or ~270 (Space
-Invaders). The other three games (and these two with `compiled=False`, or where the module was
-not built) go through the Python loop.
+Breakout, Space Invaders and Freeway have a compiled core (`routine_gym/_minatar_core.cpp`,
+built by `pip install`): the same game, its random draws (sticky actions, Breakout's serve,
+Freeway's cars) taken from each game's own `RandomState`, stepped for all games in one C++ call
+that writes the observations straight into the float32 batch. A step of 16 games then costs
+about 10 µs instead of ~50 (Breakout), ~100 (Freeway) or ~270 (Space Invaders). Asterix and
+Seaquest (and these three with `compiled=False`, or where the module was not built) go through
+the Python loop.
 
 `tests/test_minatar_vector.py` checks, on fixed seeds and actions, that it returns what the
 Python path returns (observations, rewards, flags and every info array), for plain actions and
@@ -51,17 +52,32 @@ except ImportError:  # not built (a source checkout without `pip install`): the 
 __all__ = ["MinAtarVectorEnv"]
 
 #: Per game with a compiled core (by MinAtar's name): the game's variables in the order of a
-#: row of the core's int32 array (`_minatar_core.cpp`'s `Field`, the last action after them),
-#: its 10×10 maps in the order of the core's uint8 maps, and the core's step function.
+#: row of the core's int32 array (`_minatar_core.cpp`'s `Field`, the last action after them;
+#: Freeway's `cars`, 8 lists of 4, as 32 entries), its 10×10 maps in the order of the core's
+#: uint8 maps, and the core's step function.
 _CORES = {
     "breakout": (("ball_x", "ball_y", "ball_dir", "pos", "strike", "last_x", "last_y"),
                  ("brick_map",), "breakout_step"),
     "space_invaders": (("pos", "alien_dir", "enemy_move_interval", "alien_move_timer",
                         "alien_shot_timer", "ramp_index", "shot_timer", "terminal", "ramping"),
                        ("alien_map", "f_bullet_map", "e_bullet_map"), "space_invaders_step"),
+    "freeway": (("pos", "move_timer", "terminate_timer", "terminal", "cars"), (),
+                "freeway_step"),
 }
 #: The games with a compiled core, by MinAtar's name.
 COMPILED_GAMES = tuple(_CORES)
+
+
+def _core_row(game: Any, fields: tuple[str, ...]) -> list[int]:
+    """A game's variables as a row of the compiled core's int32 array (without the last
+    action): each field's value, Freeway's cars flattened."""
+    row: list[int] = []
+    for name in fields:
+        if name == "cars":
+            row += [int(v) for car in game.cars for v in car]
+        else:
+            row.append(int(getattr(game, name)))
+    return row
 
 
 class MinAtarVectorEnv(VectorEnv):
@@ -89,10 +105,10 @@ class MinAtarVectorEnv(VectorEnv):
             ``info["routine_observations"]``.
         env_kwargs: `gym.make` keyword arguments (`sticky_action_prob`, `difficulty_ramping`,
             `max_episode_steps`).
-        compiled: step the games in the compiled core (Breakout and Space Invaders): None uses
-            it where the game has one and it was built, True requires it, False keeps the Python
-            loop. With the core the games' state lives in it between resets: reseed and reset
-            them through this env's `reset`, not through `games[i]`.
+        compiled: step the games in the compiled core (Breakout, Space Invaders, Freeway): None
+            uses it where the game has one and it was built, True requires it, False keeps the
+            Python loop. With the core the games' state lives in it between resets: reseed and
+            reset them through this env's `reset`, not through `games[i]`.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}
@@ -155,7 +171,8 @@ class MinAtarVectorEnv(VectorEnv):
             # sticky action is drawn from its own RandomState, kept alive here.
             self._core_fields, self._core_maps, step_name = _CORES[game_name]
             self._core_step = getattr(_minatar_core, step_name)
-            self._core = np.zeros((num_envs, len(self._core_fields) + 1), dtype=np.int32)
+            width = len(_core_row(self._games[0].env, self._core_fields)) + 1
+            self._core = np.zeros((num_envs, width), dtype=np.int32)
             self._maps = np.zeros((num_envs, len(self._core_maps), h, w), dtype=np.uint8)
             self._rng_owners: list[np.random.BitGenerator] = []
             self._core_sequences = padded_actions(self._sequences, self.max_routine_length)
@@ -208,13 +225,11 @@ class MinAtarVectorEnv(VectorEnv):
 
     def _load_core(self) -> None:
         """Copy the games' state (after their reset in Python) into the compiled core's arrays."""
-        fields = self._core_fields
         for i, environment in enumerate(self._games):
-            game = environment.env
-            self._core[i, : len(fields)] = [int(getattr(game, f)) for f in fields]
-            self._core[i, len(fields)] = int(environment.last_action)
+            self._core[i, :-1] = _core_row(environment.env, self._core_fields)
+            self._core[i, -1] = int(environment.last_action)
             for k, name in enumerate(self._core_maps):
-                self._maps[i, k] = getattr(game, name) != 0
+                self._maps[i, k] = getattr(environment.env, name) != 0
         # The bit generators themselves (a RandomState can swap its own for a new one).
         self._rng_owners = [environment.random._bit_generator for environment in self._games]
         self._rngs = self._rng_addresses()
