@@ -1,6 +1,6 @@
-// Compiled core of routine_gym.envs.minatar_vector for MinAtar's Breakout and Space Invaders:
-// all games of a vector env stepped in one call, each through the primitive action or routine it
-// was given.
+// Compiled core of routine_gym.envs.minatar_vector for MinAtar's Breakout, Space Invaders,
+// Freeway and Asterix: all games of a vector env stepped in one call, each through the primitive
+// action or routine it was given (one C++ function, templated on the game).
 //
 // MinAtar's games (minatar/environments/*.py, Young & Tian 2019) are a few integer or 10×10
 // array updates per step; in Python each step of one game costs ~2 µs (Breakout) to ~17 µs
@@ -15,17 +15,24 @@
 //     friendly bullets rolled up and the enemy bullets down, the aliens' march with its wrap
 //     around (np.roll), the nearest alien's shot, the kills, the timers, the new wave and the
 //     difficulty ramp);
+//   - `Freeway::act` is freeway.py's (the chicken's move timer, the crossing that redraws the
+//     cars, the cars' hits before and after they move, their wrap, the clock);
+//   - `Asterix::act` is asterix.py's (the spawn into a random free slot, gold taken and enemies
+//     met before and after the entities move, entities leaving the board, the speed ramp);
 //   - the sticky action is `Environment.act`'s: one uniform draw per primitive step from the
 //     game's own `np.random.RandomState`, through numpy's `bitgen_t` (the same `next_double` that
 //     `RandomState.rand()` calls, so the game's random stream is shared with Python, draw for
-//     draw); Breakout's reset's `RandomState.randint(2)` is `next_uint32() & 1`, as numpy
-//     computes a masked bounded integer of range 1 (Space Invaders' reset draws nothing);
+//     draw); `RandomState.randint(n)` is numpy's masked bounded integer (`next_uint32()` and
+//     the smallest all-ones mask over n - 1, redrawn while above n - 1; no draw for n = 1): the
+//     Breakout serve's `randint(2)`, Freeway's `randint(1, 6, 8)`, Asterix's slot;
+//     `rand()` is `next_double()`;
 //   - `write_state` is `Env.state()` written straight into the agent's channels-first float32
 //     view.
 //
 // `tests/test_minatar_vector.py` compares every output with the Python path on fixed seeds and
 // actions, and single steps from arbitrary game states (Breakout's brick refill, Space
-// Invaders' new waves and ramp included).
+// Invaders' new waves, Freeway's crossings, Asterix's spawns, the ramps), comparing the games'
+// variables and their generators' states too.
 //
 // Python checks every argument (shapes, dtypes, contiguity, actions in range); this file checks
 // buffer sizes again so that a wrong call is an error, never a write outside an array.
@@ -466,6 +473,161 @@ struct Freeway {
   }
 };
 
+// ---- Asterix ----------------------------------------------------------------------------------
+
+struct Asterix {
+  // One game's variables, then its 8 entity slots' [present, x, y, moves right, gold], then the
+  // last action; no maps.
+  enum Field { kPlayerX, kPlayerY, kSpawnSpeed, kSpawnTimer, kMoveSpeed, kMoveTimer, kRampTimer,
+               kRampIndex, kTerminal, kRamping, kEntities, kLastAction = kEntities + 40,
+               kFields };
+  static constexpr int kMaps = 0;
+  static constexpr int kChannels = 4;  // player, enemy, trail, gold
+  static constexpr const char* kInvalid =
+      "is not an Asterix state (the player or an entity off the 10x10 board, a flag other than "
+      "0 or 1 or an action outside 0-5)";
+  static constexpr const char* kActError = "";  // its act cannot fail
+  static constexpr int kRampInterval = 100;
+
+  static bool valid(const int32_t* g) {
+    if (g[kPlayerX] < 0 || g[kPlayerX] > 9 || g[kPlayerY] < 0 || g[kPlayerY] > 9 ||
+        (g[kTerminal] != 0 && g[kTerminal] != 1) || (g[kRamping] != 0 && g[kRamping] != 1) ||
+        g[kLastAction] < 0 || g[kLastAction] > 5) {
+      return false;
+    }
+    for (int i = 0; i < 8; ++i) {
+      const int32_t* e = g + kEntities + 5 * i;
+      if ((e[0] != 0 && e[0] != 1) || (e[3] != 0 && e[3] != 1) || (e[4] != 0 && e[4] != 1)) {
+        return false;
+      }
+      if (e[0] && (e[1] < 0 || e[1] > 9 || e[2] < 0 || e[2] > 9)) return false;
+    }
+    return true;
+  }
+
+  // `RandomState.randint(n)`: no draw for n = 1; else numpy's masked bounded integers.
+  static int randint(BitGen* rng, int n) {
+    const uint32_t range = static_cast<uint32_t>(n - 1);
+    if (range == 0) return 0;
+    uint32_t mask = range;
+    for (int shift = 1; shift < 32; shift <<= 1) mask |= mask >> shift;
+    uint32_t v;
+    do {
+      v = rng->next_uint32(rng->state) & mask;
+    } while (v > range);
+    return static_cast<int>(v);
+  }
+
+  // `_spawn_entity`.
+  static void spawn(int32_t* g, BitGen* rng) {
+    const bool lr = rng->next_double(rng->state) < 1.0 / 2;
+    const bool gold = rng->next_double(rng->state) < 1.0 / 3;
+    int slots[8];
+    int n = 0;
+    for (int i = 0; i < 8; ++i) {
+      if (!g[kEntities + 5 * i]) slots[n++] = i;
+    }
+    if (n == 0) return;
+    const int slot = slots[randint(rng, n)];
+    int32_t* e = g + kEntities + 5 * slot;
+    e[0] = 1;
+    e[1] = lr ? 0 : 9;
+    e[2] = slot + 1;
+    e[3] = lr;
+    e[4] = gold;
+  }
+
+  // An entity on the player: gold is taken (+1), an enemy ends the game.
+  static void meet(int32_t* g, int32_t* e, int* reward) {
+    if (e[1] == g[kPlayerX] && e[2] == g[kPlayerY]) {
+      if (e[4]) {
+        std::memset(e, 0, sizeof(int32_t) * 5);  // the slot is None again
+        *reward += 1;
+      } else {
+        g[kTerminal] = 1;
+      }
+    }
+  }
+
+  static int act(int32_t* g, uint8_t*, int64_t a, bool* terminal, BitGen* rng) {
+    if (g[kTerminal]) {
+      *terminal = true;
+      return 0;
+    }
+    int reward = 0;
+    if (g[kSpawnTimer] == 0) {
+      spawn(g, rng);
+      g[kSpawnTimer] = g[kSpawnSpeed];
+    }
+    if (a == kLeft) {
+      g[kPlayerX] = g[kPlayerX] > 0 ? g[kPlayerX] - 1 : 0;
+    } else if (a == kRight) {
+      g[kPlayerX] = g[kPlayerX] < 9 ? g[kPlayerX] + 1 : 9;
+    } else if (a == kUp) {
+      g[kPlayerY] = g[kPlayerY] > 1 ? g[kPlayerY] - 1 : 1;
+    } else if (a == kDown) {
+      g[kPlayerY] = g[kPlayerY] < 8 ? g[kPlayerY] + 1 : 8;
+    }
+    for (int i = 0; i < 8; ++i) {
+      int32_t* e = g + kEntities + 5 * i;
+      if (e[0]) meet(g, e, &reward);
+    }
+    if (g[kMoveTimer] == 0) {
+      g[kMoveTimer] = g[kMoveSpeed];
+      for (int i = 0; i < 8; ++i) {
+        int32_t* e = g + kEntities + 5 * i;
+        if (!e[0]) continue;
+        e[1] += e[3] ? 1 : -1;
+        if (e[1] < 0 || e[1] > 9) {
+          std::memset(e, 0, sizeof(int32_t) * 5);  // off the board: it can meet no one
+        } else {
+          meet(g, e, &reward);
+        }
+      }
+    }
+    g[kSpawnTimer] -= 1;
+    g[kMoveTimer] -= 1;
+    if (g[kRamping] && (g[kSpawnSpeed] > 1 || g[kMoveSpeed] > 1)) {
+      if (g[kRampTimer] >= 0) {
+        g[kRampTimer] -= 1;
+      } else {
+        if (g[kMoveSpeed] > 1 && g[kRampIndex] % 2) g[kMoveSpeed] -= 1;
+        if (g[kSpawnSpeed] > 1) g[kSpawnSpeed] -= 1;
+        g[kRampIndex] += 1;
+        g[kRampTimer] = kRampInterval;
+      }
+    }
+    *terminal = g[kTerminal] != 0;
+    return reward;
+  }
+
+  static void reset(int32_t* g, uint8_t*, BitGen*) {
+    g[kPlayerX] = 5;
+    g[kPlayerY] = 5;
+    std::memset(g + kEntities, 0, sizeof(int32_t) * 40);
+    g[kSpawnSpeed] = 10;
+    g[kSpawnTimer] = 10;
+    g[kMoveSpeed] = 5;
+    g[kMoveTimer] = 5;
+    g[kRampTimer] = kRampInterval;
+    g[kRampIndex] = 0;
+    g[kTerminal] = 0;
+    g[kLastAction] = 0;
+  }
+
+  static void write_state(const int32_t* g, const uint8_t*, float* out) {
+    std::memset(out, 0, sizeof(float) * kChannels * kCells);
+    out[0 * kCells + g[kPlayerY] * kSize + g[kPlayerX]] = 1.0f;
+    for (int i = 0; i < 8; ++i) {
+      const int32_t* e = g + kEntities + 5 * i;
+      if (!e[0]) continue;
+      out[(e[4] ? 3 : 1) * kCells + e[2] * kSize + e[1]] = 1.0f;
+      const int back_x = e[3] ? e[1] - 1 : e[1] + 1;
+      if (back_x >= 0 && back_x <= 9) out[2 * kCells + e[2] * kSize + back_x] = 1.0f;
+    }
+  }
+};
+
 using routine_gym::Buffers;
 
 const char kStepArgs[] =
@@ -480,7 +642,8 @@ const char kStepArgs[] =
     "truncated bool (E,), executed int64 (E,), step_rewards float64 (E, L) or None,\n"
     "inner_states float32 (E, L, C, 10, 10) or None, states and final_states float32\n"
     "(E, C, 10, 10). Breakout: F 8, M 1 (bricks), C 4; Space Invaders: F 10, M 3 (aliens,\n"
-    "friendly bullets, enemy bullets), C 6; Freeway: F 37 (4 variables, 8 cars of 4), M 0, C 7.";
+    "friendly bullets, enemy bullets), C 6; Freeway: F 37 (4 variables, 8 cars of 4), M 0, C 7;\n"
+    "Asterix: F 51 (10 variables, 8 entity slots of 5), M 0, C 4.";
 
 template <typename Game>
 PyObject* step_games(PyObject* args) {
@@ -615,22 +778,25 @@ PyObject* space_invaders_step(PyObject*, PyObject* args) {
   return step_games<SpaceInvaders>(args);
 }
 PyObject* freeway_step(PyObject*, PyObject* args) { return step_games<Freeway>(args); }
+PyObject* asterix_step(PyObject*, PyObject* args) { return step_games<Asterix>(args); }
 
 const std::string kBreakoutDoc = std::string("breakout_step") + kStepArgs;
 const std::string kSpaceInvadersDoc = std::string("space_invaders_step") + kStepArgs;
 const std::string kFreewayDoc = std::string("freeway_step") + kStepArgs;
+const std::string kAsterixDoc = std::string("asterix_step") + kStepArgs;
 
 PyMethodDef kMethods[] = {
     {"breakout_step", breakout_step, METH_VARARGS, kBreakoutDoc.c_str()},
     {"space_invaders_step", space_invaders_step, METH_VARARGS, kSpaceInvadersDoc.c_str()},
     {"freeway_step", freeway_step, METH_VARARGS, kFreewayDoc.c_str()},
+    {"asterix_step", asterix_step, METH_VARARGS, kAsterixDoc.c_str()},
     {nullptr, nullptr, 0, nullptr},
 };
 
 PyModuleDef kModule = {
     PyModuleDef_HEAD_INIT, "_minatar_core",
-    "Compiled MinAtar Breakout, Space Invaders and Freeway for routine_gym.envs.minatar_vector "
-    "(see the source's header).",
+    "Compiled MinAtar Breakout, Space Invaders, Freeway and Asterix for "
+    "routine_gym.envs.minatar_vector (see the source's header).",
     -1, kMethods, nullptr, nullptr, nullptr, nullptr,
 };
 

@@ -8,9 +8,10 @@ import pytest
 
 import routine_gym  # noqa: F401  (registers the MinAtar ids)
 from routine_gym.envs.factory import make_vector_env
-from routine_gym.envs.minatar_vector import MinAtarVectorEnv
+from routine_gym.envs.minatar_vector import MinAtarVectorEnv, _core_row
 
-COMPILED_IDS = ("MinAtar/Breakout-v1", "MinAtar/SpaceInvaders-v1", "MinAtar/Freeway-v1")
+COMPILED_IDS = ("MinAtar/Breakout-v1", "MinAtar/SpaceInvaders-v1", "MinAtar/Freeway-v1",
+                "MinAtar/Asterix-v1")
 
 
 def _flat(info: dict, prefix: str = "") -> dict:
@@ -35,8 +36,8 @@ def _assert_same_steps(env_id, routines, record, env_kwargs, steps, num_envs=6, 
     python = make_vector_env(env_id, num_envs, routines=routines, record_observations=record,
                              env_kwargs=env_kwargs, batched=False)
     assert isinstance(batched, MinAtarVectorEnv)
-    # Breakout, Space Invaders and Freeway run in the compiled core unless told otherwise; the
-    # other games in Python.
+    # Breakout, Space Invaders, Freeway and Asterix run in the compiled core unless told
+    # otherwise; Seaquest in Python.
     assert batched.compiled == (compiled is not False and env_id in COMPILED_IDS)
     assert isinstance(python, gym.vector.SyncVectorEnv)
     assert batched.single_observation_space == python.single_observation_space
@@ -295,6 +296,71 @@ def test_the_compiled_core_steps_any_freeway_state_as_minatar_does(sticky):
         ends += int(done.sum())
         crossings += int((out_p[1] > 0).sum())
     assert crossings > 100 and ends > 100 and hits > 100
+
+
+def _draw_asterix_state(rng):
+    """An Asterix state: the player anywhere in rows 1-8, entity slots empty or holding gold or
+    an enemy moving either way anywhere in its lane (often beside the player), spawns, moves
+    and the ramp often due this step (with every slot full, sometimes, so a spawn finds none)."""
+    px, py = int(rng.integers(10)), int(rng.integers(1, 9))
+    full = rng.random() < 0.1
+    entities = []
+    for slot in range(8):
+        if full or rng.random() < 0.5:
+            x = int(np.clip(px + rng.integers(-1, 2), 0, 9)) if rng.random() < 0.5 \
+                else int(rng.integers(10))
+            entities.append([x, slot + 1, bool(rng.integers(2)), bool(rng.random() < 1 / 3)])
+        else:
+            entities.append(None)
+    return {"player_x": px, "player_y": py, "entities": entities,
+            "spawn_speed": int(rng.integers(1, 11)), "spawn_timer": int(rng.integers(0, 3)),
+            "move_speed": int(rng.integers(1, 6)), "move_timer": int(rng.integers(0, 3)),
+            "ramp_timer": int(rng.integers(-1, 2)), "ramp_index": int(rng.integers(0, 4)),
+            "last_action": int(rng.choice([0, 1, 2, 3, 4]))}
+
+
+@pytest.mark.parametrize("sticky,ramping", [(0.0, True), (0.3, True), (0.1, False)])
+def test_the_compiled_core_steps_any_asterix_state_as_minatar_does(sticky, ramping):
+    # From states drawn anywhere (gold taken and enemies met before and after the entities
+    # move, entities leaving the board, spawns into a random free slot from the game's
+    # generator or into none, the ramp), one step of each action against MinAtar's own `act`
+    # and `state`; the games' variables and their generators' states after it too.
+    kwargs = {"sticky_action_prob": sticky, "difficulty_ramping": ramping}
+    compiled, python = (MinAtarVectorEnv("MinAtar/Asterix-v1", 8, env_kwargs=kwargs,
+                                         compiled=c) for c in (True, False))
+    for envs in (compiled, python):
+        envs.reset(seed=11)
+    rng = np.random.default_rng(3)
+    gold = ends = ramps = spawns = 0
+    for _ in range(300):
+        for i in range(8):
+            state = _draw_asterix_state(rng)
+            for envs in (compiled, python):
+                _set_state(envs, i, {**state, "entities": [
+                    None if e is None else list(e) for e in state["entities"]]})
+        compiled._load_core()
+        actions = rng.integers(0, 5, 8)
+        speeds = [(g.env.spawn_speed, g.env.move_speed) for g in python._games]
+        counts = [sum(e is not None for e in g.env.entities) for g in python._games]
+        out_c, out_p = compiled.step(actions), python.step(actions)
+        for b, p in zip(out_c[:4], out_p[:4], strict=True):
+            assert b.dtype == p.dtype and np.array_equal(b, p)
+        done = out_p[2] | out_p[3]
+        for i in range(8):
+            if done[i]:
+                assert np.array_equal(out_c[4]["final_obs"][i], out_p[4]["final_obs"][i])
+            else:
+                game = python._games[i].env
+                row = _core_row(game, compiled._core_fields) + [python._games[i].last_action]
+                assert compiled._core[i].tolist() == row
+                ramps += int((game.spawn_speed, game.move_speed) != speeds[i])
+                spawns += int(sum(e is not None for e in game.entities) > counts[i])
+            c_state, p_state = (e._games[i].random.get_state() for e in (compiled, python))
+            assert c_state[2] == p_state[2] and np.array_equal(c_state[1], p_state[1])
+        ends += int(done.sum())
+        gold += int((out_p[1] > 0).sum())
+    assert gold > 100 and ends > 100 and spawns > 100
+    assert (ramps > 10) == ramping
 
 
 def test_the_compiled_core_shares_each_games_random_stream_with_python():

@@ -17,13 +17,13 @@ once:
   episode ended, each with its `_key` mask, exactly as `SyncVectorEnv` with same-step autoreset
   arranges them.
 
-Breakout, Space Invaders and Freeway have a compiled core (`routine_gym/_minatar_core.cpp`,
-built by `pip install`): the same game, its random draws (sticky actions, Breakout's serve,
-Freeway's cars) taken from each game's own `RandomState`, stepped for all games in one C++ call
-that writes the observations straight into the float32 batch. A step of 16 games then costs
-about 10 µs instead of ~50 (Breakout), ~100 (Freeway) or ~270 (Space Invaders). Asterix and
-Seaquest (and these three with `compiled=False`, or where the module was not built) go through
-the Python loop.
+Breakout, Space Invaders, Freeway and Asterix have a compiled core
+(`routine_gym/_minatar_core.cpp`, built by `pip install`): the same game, its random draws
+(sticky actions, Breakout's serve, Freeway's cars, Asterix's spawns) taken from each game's own
+`RandomState`, stepped for all games in one C++ call that writes the observations straight into
+the float32 batch. A step of 16 games then costs 6-11 µs instead of ~50 (Breakout, Asterix),
+~100 (Freeway) or ~270 (Space Invaders). Seaquest (and these four with `compiled=False`, or
+where the module was not built) goes through the Python loop.
 
 `tests/test_minatar_vector.py` checks, on fixed seeds and actions, that it returns what the
 Python path returns (observations, rewards, flags and every info array), for plain actions and
@@ -53,8 +53,8 @@ __all__ = ["MinAtarVectorEnv"]
 
 #: Per game with a compiled core (by MinAtar's name): the game's variables in the order of a
 #: row of the core's int32 array (`_minatar_core.cpp`'s `Field`, the last action after them;
-#: Freeway's `cars`, 8 lists of 4, as 32 entries), its 10×10 maps in the order of the core's
-#: uint8 maps, and the core's step function.
+#: Freeway's `cars`, 8 lists of 4, as 32 entries; Asterix's `entities`, 8 slots, as 40), its
+#: 10×10 maps in the order of the core's uint8 maps, and the core's step function.
 _CORES = {
     "breakout": (("ball_x", "ball_y", "ball_dir", "pos", "strike", "last_x", "last_y"),
                  ("brick_map",), "breakout_step"),
@@ -63,6 +63,9 @@ _CORES = {
                        ("alien_map", "f_bullet_map", "e_bullet_map"), "space_invaders_step"),
     "freeway": (("pos", "move_timer", "terminate_timer", "terminal", "cars"), (),
                 "freeway_step"),
+    "asterix": (("player_x", "player_y", "spawn_speed", "spawn_timer", "move_speed",
+                 "move_timer", "ramp_timer", "ramp_index", "terminal", "ramping", "entities"),
+                (), "asterix_step"),
 }
 #: The games with a compiled core, by MinAtar's name.
 COMPILED_GAMES = tuple(_CORES)
@@ -70,11 +73,14 @@ COMPILED_GAMES = tuple(_CORES)
 
 def _core_row(game: Any, fields: tuple[str, ...]) -> list[int]:
     """A game's variables as a row of the compiled core's int32 array (without the last
-    action): each field's value, Freeway's cars flattened."""
+    action): each field's value, Freeway's cars and Asterix's entity slots flattened."""
     row: list[int] = []
     for name in fields:
         if name == "cars":
             row += [int(v) for car in game.cars for v in car]
+        elif name == "entities":  # Asterix's slots: [present, x, y, moves right, gold]
+            for entity in game.entities:
+                row += [0] * 5 if entity is None else [1, *(int(v) for v in entity)]
         else:
             row.append(int(getattr(game, name)))
     return row
@@ -105,10 +111,10 @@ class MinAtarVectorEnv(VectorEnv):
             ``info["routine_observations"]``.
         env_kwargs: `gym.make` keyword arguments (`sticky_action_prob`, `difficulty_ramping`,
             `max_episode_steps`).
-        compiled: step the games in the compiled core (Breakout, Space Invaders, Freeway): None
-            uses it where the game has one and it was built, True requires it, False keeps the
-            Python loop. With the core the games' state lives in it between resets: reseed and
-            reset them through this env's `reset`, not through `games[i]`.
+        compiled: step the games in the compiled core (all but Seaquest): None uses it where
+            the game has one and it was built, True requires it, False keeps the Python loop.
+            With the core the games' state lives in it between resets: reseed and reset them
+            through this env's `reset`, not through `games[i]`.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}
