@@ -24,8 +24,9 @@ def test_a_short_run_writes_both_steps_tables(tmp_path):
     report = out.read_text()
     assert "- wrapper step: compiled (routine_gym._wrapper_core)" in report
     assert "### constant" in report and "### cartpole" not in report
-    # One ratio row per L for each step, the primitive row for the compiled one.
-    compiled = re.findall(r"^\| routine \| (\d+) \| [\d,]+ \| -?[\d,]+ \| ", report, re.M)
+    # One ratio row per L for each step, the primitive row for the compiled one (overheads are
+    # differences of two times, negative now and then on a budget this small).
+    compiled = re.findall(r"^\| routine \| (\d+) \| -?[\d,]+ \| -?[\d,]+ \| ", report, re.M)
     assert compiled == ["1", "3", "5", "10"] * 2
     assert re.search(r"^\| primitive \| 1 \| ", report, re.M)
     assert "The wrapper's Python `step` in the same run" in report
