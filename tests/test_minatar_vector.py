@@ -104,6 +104,25 @@ def test_breakout_compiled_or_not_returns_what_the_python_path_returns(routines,
         assert truncations > 0
 
 
+@pytest.mark.parametrize("env_id,routines,record,env_kwargs,steps", [
+    ("MinAtar/SpaceInvaders-v1", [[3, 3, 1]], False,
+     {"sticky_action_prob": 0.0, "difficulty_ramping": False, "max_episode_steps": 60}, 400),
+    ("MinAtar/SpaceInvaders-v1", None, False, {"sticky_action_prob": 1.0}, 300),
+    ("MinAtar/Freeway-v1", [[1, 1], [2]], True, {"max_episode_steps": 45}, 300),
+    ("MinAtar/Freeway-v1", None, False, {}, 2600),  # the 2,500-step clock ends every game
+    ("MinAtar/Asterix-v1", [[1, 1, 1], [3, 3]], True,
+     {"sticky_action_prob": 0.5, "max_episode_steps": 30}, 300),
+    ("MinAtar/Asterix-v1", None, False, {"difficulty_ramping": False}, 600),
+])
+def test_the_other_compiled_games_return_what_the_python_path_returns(env_id, routines, record,
+                                                                     env_kwargs, steps):
+    ends, truncations = _assert_same_steps(env_id, routines, record, env_kwargs, steps,
+                                           compiled=True)
+    assert ends > 0
+    if env_kwargs.get("max_episode_steps"):
+        assert truncations > 0
+
+
 def _breakout_pair(num_envs, sticky):
     kwargs = {"sticky_action_prob": sticky}
     pair = [MinAtarVectorEnv("MinAtar/Breakout-v1", num_envs, env_kwargs=kwargs, compiled=c)
