@@ -1,6 +1,6 @@
-// Compiled core of routine_gym.envs.minatar_vector for MinAtar's Breakout, Space Invaders,
-// Freeway and Asterix: all games of a vector env stepped in one call, each through the primitive
-// action or routine it was given (one C++ function, templated on the game).
+// Compiled core of routine_gym.envs.minatar_vector for MinAtar's five games (Breakout, Space
+// Invaders, Freeway, Asterix, Seaquest): all games of a vector env stepped in one call, each
+// through the primitive action or routine it was given (one C++ function, templated on the game).
 //
 // MinAtar's games (minatar/environments/*.py, Young & Tian 2019) are a few integer or 10×10
 // array updates per step; in Python each step of one game costs ~2 µs (Breakout) to ~17 µs
@@ -19,20 +19,25 @@
 //     cars, the cars' hits before and after they move, their wrap, the clock);
 //   - `Asterix::act` is asterix.py's (the spawn into a random free slot, gold taken and enemies
 //     met before and after the entities move, entities leaving the board, the speed ramp);
+//   - `Seaquest::act` is seaquest.py's, with its Python lists of objects kept as lists
+//     (`ObjectList`): the loops that remove while they iterate (`reversed`, `list.remove` of the
+//     first equal element, an object mutated and still shooting after its removal) do here
+//     what they do in Python;
 //   - the sticky action is `Environment.act`'s: one uniform draw per primitive step from the
 //     game's own `np.random.RandomState`, through numpy's `bitgen_t` (the same `next_double` that
 //     `RandomState.rand()` calls, so the game's random stream is shared with Python, draw for
 //     draw); `RandomState.randint(n)` is numpy's masked bounded integer (`next_uint32()` and
 //     the smallest all-ones mask over n - 1, redrawn while above n - 1; no draw for n = 1): the
-//     Breakout serve's `randint(2)`, Freeway's `randint(1, 6, 8)`, Asterix's slot;
+//     Breakout serve's `randint(2)`, Freeway's `randint(1, 6, 8)`, Asterix's slot, Seaquest's
+//     lane;
 //     `rand()` is `next_double()`;
 //   - `write_state` is `Env.state()` written straight into the agent's channels-first float32
 //     view.
 //
 // `tests/test_minatar_vector.py` compares every output with the Python path on fixed seeds and
 // actions, and single steps from arbitrary game states (Breakout's brick refill, Space
-// Invaders' new waves, Freeway's crossings, Asterix's spawns, the ramps), comparing the games'
-// variables and their generators' states too.
+// Invaders' new waves, Freeway's crossings, Asterix's spawns, Seaquest's surfacing and equal
+// objects, the ramps), comparing the games' variables and their generators' states too.
 //
 // Python checks every argument (shapes, dtypes, contiguity, actions in range); this file checks
 // buffer sizes again so that a wrong call is an error, never a write outside an array.
@@ -91,10 +96,11 @@ struct Breakout {
            g[kLastAction] >= 0 && g[kLastAction] <= 5;
   }
 
-  // `Env.act(a)`: returns the reward, or -1 where MinAtar's `act` raises IndexError (a ball in
-  // the bottom row moving down, which no game played from a reset reaches); sets `*terminal`
-  // when the ball passed the paddle.
-  static int act(int32_t* g, uint8_t* bricks, int64_t a, bool* terminal, BitGen*) {
+  // `Env.act(a)`: returns the reward; sets `*failed` where MinAtar's `act` raises IndexError (a
+  // ball in the bottom row moving down, which no game played from a reset reaches) and
+  // `*terminal` when the ball passed the paddle.
+  static int act(int32_t* g, uint8_t* bricks, int64_t a, bool* terminal, BitGen*,
+                 bool* failed) {
     int reward = 0;
     if (a == kLeft) {
       g[kPos] = g[kPos] > 0 ? g[kPos] - 1 : 0;
@@ -107,7 +113,10 @@ struct Breakout {
     int new_x = g[kBallX] + ((dir == 0 || dir == 3) ? -1 : 1);
     int new_y = g[kBallY] + ((dir == 0 || dir == 1) ? -1 : 1);
 
-    if (new_y > 9) return -1;
+    if (new_y > 9) {
+      *failed = true;
+      return 0;
+    }
     bool strike_toggle = false;
     if (new_x < 0 || new_x > 9) {
       new_x = new_x < 0 ? 0 : 9;
@@ -234,10 +243,11 @@ struct SpaceInvaders {
     }
   }
 
-  // `Env.act(a)`: returns the reward (the aliens shot this step), or -1 where MinAtar's `act`
-  // raises TypeError (an alien shot due with no alien left, which no game played from a
-  // reset reaches); sets `*terminal` when an alien or an enemy bullet reached the cannon.
-  static int act(int32_t* g, uint8_t* maps, int64_t a, bool* terminal, BitGen*) {
+  // `Env.act(a)`: returns the reward (the aliens shot this step); sets `*failed` where MinAtar's
+  // `act` raises TypeError (an alien shot due with no alien left, which no game played from a
+  // reset reaches) and `*terminal` when an alien or an enemy bullet reached the cannon.
+  static int act(int32_t* g, uint8_t* maps, int64_t a, bool* terminal, BitGen*,
+                 bool* failed) {
     uint8_t* alien = maps;
     uint8_t* f_bullet = maps + kCells;
     uint8_t* e_bullet = maps + 2 * kCells;
@@ -293,7 +303,10 @@ struct SpaceInvaders {
           }
         }
       }
-      if (shooter < 0) return -1;
+      if (shooter < 0) {
+        *failed = true;
+        return 0;
+      }
       e_bullet[shooter] = 1;
     }
     int reward = 0;
@@ -402,7 +415,8 @@ struct Freeway {
     }
   }
 
-  static int act(int32_t* g, uint8_t*, int64_t a, bool* terminal, BitGen* rng) {
+  static int act(int32_t* g, uint8_t*, int64_t a, bool* terminal, BitGen* rng,
+                 bool*) {  // it cannot fail
     if (g[kTerminal]) {
       *terminal = true;
       return 0;
@@ -549,7 +563,8 @@ struct Asterix {
     }
   }
 
-  static int act(int32_t* g, uint8_t*, int64_t a, bool* terminal, BitGen* rng) {
+  static int act(int32_t* g, uint8_t*, int64_t a, bool* terminal, BitGen* rng,
+                 bool*) {  // it cannot fail
     if (g[kTerminal]) {
       *terminal = true;
       return 0;
@@ -628,6 +643,416 @@ struct Asterix {
   }
 };
 
+// ---- Seaquest ---------------------------------------------------------------------------------
+
+// Python's floor division and modulo (the game's `//` and `%` on values that may be negative).
+inline int floor_div(int a, int b) { return a / b - ((a % b != 0) && ((a < 0) != (b < 0))); }
+inline int py_mod(int a, int b) { return a - b * floor_div(a, b); }
+
+// One of Seaquest's Python lists of small lists (bullets, fish, subs, divers) in an int32 row:
+// its length, then `kCap` records of [id, values...]. The ids stand for the Python objects: a
+// loop's element is mutated where it is, even after `list.remove` took another element equal
+// to it in value (which is what `remove` does: the first equal one), and a reversed loop goes
+// on by index as CPython's reversed list iterator does, so the game's loops that remove while
+// they iterate do here what they do in Python.
+struct ObjectList {
+  static constexpr int kCap = 48;
+  int32_t* base;
+  int width;  // values per record
+  int count() const { return base[0]; }
+  int32_t* record(int k) const { return base + 1 + k * (width + 1); }
+  int32_t* values(int k) const { return record(k) + 1; }
+  static constexpr int size(int width) { return 1 + kCap * (width + 1); }
+  int index_of_id(int32_t id) const {
+    for (int k = 0; k < count(); ++k) {
+      if (record(k)[0] == id) return k;
+    }
+    return -1;
+  }
+  void remove_at(int k) {
+    const int n = count();
+    for (int j = k; j + 1 < n; ++j) std::memcpy(record(j), record(j + 1), 4 * (width + 1));
+    std::memset(record(n - 1), 0, 4 * (width + 1));
+    base[0] = n - 1;
+  }
+  // `list.remove(v)`: the first element equal to `v` in value.
+  void remove_equal(const int32_t* v) {
+    for (int k = 0; k < count(); ++k) {
+      if (std::memcmp(values(k), v, 4 * width) == 0) {
+        remove_at(k);
+        return;
+      }
+    }
+  }
+  // `list += [v]`; false when the list is full (no game played from a reset gets there).
+  bool append(const int32_t* v, int32_t* next_id) {
+    if (count() >= kCap) return false;
+    int32_t* r = record(count());
+    r[0] = (*next_id)++;
+    std::memcpy(r + 1, v, 4 * width);
+    base[0] += 1;
+    return true;
+  }
+};
+
+// The element a loop holds: its values, written back to its record while it is in the list.
+struct Held {
+  ObjectList* list;
+  int32_t id;
+  int32_t v[6];
+  Held(ObjectList* l, int k) : list(l), id(l->record(k)[0]) {
+    std::memcpy(v, l->values(k), 4 * l->width);
+  }
+  void store() {
+    const int k = list->index_of_id(id);
+    if (k >= 0) std::memcpy(list->values(k), v, 4 * list->width);
+  }
+};
+
+// Seaquest's row: 15 variables, its five lists (widths 3, 3, 4, 5, 4), the last action.
+constexpr int kSeaquestLastAction =
+    15 + 5 + ObjectList::kCap * ((3 + 1) + (3 + 1) + (4 + 1) + (5 + 1) + (4 + 1));
+
+struct Seaquest {
+  enum Field { kOxygen, kDiverCount, kSubX, kSubY, kSubOr, kSpawnSpeed, kSpawnTimer,
+               kDiverTimer, kMoveSpeed, kRampIndex, kShotTimer, kSurface, kTerminal, kRamping,
+               kNextId, kLists };
+  // The lists, in the row's order, and their values per element.
+  enum List { kFriendly, kEnemyBullets, kFish, kSubs, kDivers, kNumLists };
+  static constexpr int kWidths[kNumLists] = {3, 3, 4, 5, 4};  // [x, y, dir, timers...]
+  static constexpr int kLastAction = kSeaquestLastAction;
+  static int list_offset(int which) {
+    int offset = kLists;
+    for (int j = 0; j < which; ++j) offset += ObjectList::size(kWidths[j]);
+    return offset;
+  }
+  static constexpr int kFields = kLastAction + 1;
+  static constexpr int kMaps = 0;
+  static constexpr int kChannels = 10;
+  static constexpr const char* kInvalid =
+      "is not a Seaquest state (the submarine or an object off the 10x10 board, the submarine "
+      "in the right column facing left, a list longer than 48, a flag other than 0 or 1 or an "
+      "action outside 0-5)";
+  static constexpr const char* kActError =
+      "more than 48 objects of one kind (a state no reset leads to)";
+  static constexpr int kMaxOxygen = 200, kDiverSpawnSpeed = 30, kShotCoolDown = 5,
+                       kEnemyShotInterval = 10, kDiverMoveInterval = 5;
+
+  static ObjectList list(int32_t* g, int which) {
+    return ObjectList{g + list_offset(which), kWidths[which]};
+  }
+
+  static bool valid(const int32_t* g) {
+    if (g[kSubX] < 0 || g[kSubX] > 9 || g[kSubY] < 0 || g[kSubY] > 9 ||
+        (g[kSubX] == 9 && !g[kSubOr]) || g[kLastAction] < 0 || g[kLastAction] > 5) {
+      return false;
+    }
+    for (int f : {kSubOr, kSurface, kTerminal, kRamping}) {
+      if (g[f] != 0 && g[f] != 1) return false;
+    }
+    for (int which = 0; which < kNumLists; ++which) {
+      const ObjectList l = list(const_cast<int32_t*>(g), which);
+      if (l.count() < 0 || l.count() > ObjectList::kCap) return false;
+      for (int k = 0; k < l.count(); ++k) {
+        const int32_t* v = l.values(k);
+        if (v[0] < 0 || v[0] > 9 || v[1] < 0 || v[1] > 9 || (v[2] != 0 && v[2] != 1)) {
+          return false;
+        }
+      }
+    }
+    return true;
+  }
+
+  static bool at_sub(const int32_t* g, const int32_t* v) {
+    return v[0] == g[kSubX] && v[1] == g[kSubY];
+  }
+
+  // `randint(low=1, high=9)`: range 7, mask 7, so one draw.
+  static int32_t row(BitGen* rng) {
+    return static_cast<int32_t>(rng->next_uint32(rng->state) & 7u) + 1;
+  }
+
+  static bool spawn_enemy(int32_t* g, BitGen* rng) {
+    const int32_t lr = rng->next_double(rng->state) < 1.0 / 2;
+    const bool is_sub = rng->next_double(rng->state) < 1.0 / 3;
+    const int32_t x = lr ? 0 : 9;
+    const int32_t y = row(rng);
+    for (int which : {kSubs, kFish}) {
+      const ObjectList l = list(g, which);
+      for (int k = 0; k < l.count(); ++k) {
+        if (l.values(k)[1] == y && l.values(k)[2] != lr) return true;
+      }
+    }
+    if (is_sub) {
+      const int32_t v[5] = {x, y, lr, g[kMoveSpeed], kEnemyShotInterval};
+      ObjectList subs = list(g, kSubs);
+      return subs.append(v, &g[kNextId]);
+    }
+    const int32_t v[4] = {x, y, lr, g[kMoveSpeed]};
+    ObjectList fish = list(g, kFish);
+    return fish.append(v, &g[kNextId]);
+  }
+
+  static bool spawn_diver(int32_t* g, BitGen* rng) {
+    const int32_t lr = rng->next_double(rng->state) < 1.0 / 2;
+    const int32_t v[4] = {lr ? 0 : 9, row(rng), lr, kDiverMoveInterval};
+    ObjectList divers = list(g, kDivers);
+    return divers.append(v, &g[kNextId]);
+  }
+
+  // A friendly bullet meeting an object of `targets` (`for x in targets: ... break`).
+  static bool shoot_first(ObjectList* targets, ObjectList* bullets, const int32_t* bullet,
+                          int* reward) {
+    for (int k = 0; k < targets->count(); ++k) {
+      if (targets->values(k)[0] == bullet[0] && targets->values(k)[1] == bullet[1]) {
+        int32_t hit[6];
+        std::memcpy(hit, targets->values(k), 4 * targets->width);
+        targets->remove_equal(hit);
+        bullets->remove_equal(bullet);
+        *reward += 1;
+        return true;
+      }
+    }
+    return false;
+  }
+
+  // An enemy that moved onto a friendly bullet (`for x in self.f_bullets: ... break`).
+  static void meet_bullet(ObjectList* enemies, ObjectList* bullets, const int32_t* enemy,
+                          int* reward) {
+    for (int k = 0; k < bullets->count(); ++k) {
+      if (enemy[0] == bullets->values(k)[0] && enemy[1] == bullets->values(k)[1]) {
+        int32_t hit[3];
+        std::memcpy(hit, bullets->values(k), 12);
+        enemies->remove_equal(enemy);
+        bullets->remove_equal(hit);
+        *reward += 1;
+        return;
+      }
+    }
+  }
+
+  static int fail(bool* failed) {
+    *failed = true;
+    return 0;
+  }
+
+  static int surface(int32_t* g) {
+    g[kSurface] = 1;
+    int reward = 0;
+    if (g[kDiverCount] == 6) {
+      g[kDiverCount] = 0;
+      reward = floor_div(g[kOxygen] * 10, kMaxOxygen);
+    }
+    g[kOxygen] = kMaxOxygen;
+    g[kDiverCount] -= 1;
+    if (g[kRamping] && (g[kSpawnSpeed] > 1 || g[kMoveSpeed] > 2)) {
+      if (g[kMoveSpeed] > 2 && py_mod(g[kRampIndex], 2)) g[kMoveSpeed] -= 1;
+      if (g[kSpawnSpeed] > 1) g[kSpawnSpeed] -= 1;
+      g[kRampIndex] += 1;
+    }
+    return reward;
+  }
+
+  static int act(int32_t* g, uint8_t*, int64_t a, bool* terminal, BitGen* rng,
+                 bool* failed) {
+    if (g[kTerminal]) {
+      *terminal = true;
+      return 0;
+    }
+    int reward = 0;
+    ObjectList friendly = list(g, kFriendly), enemy_bullets = list(g, kEnemyBullets),
+               fish = list(g, kFish), subs = list(g, kSubs), divers = list(g, kDivers);
+    if (g[kSpawnTimer] == 0) {
+      if (!spawn_enemy(g, rng)) return fail(failed);
+      g[kSpawnTimer] = g[kSpawnSpeed];
+    }
+    if (g[kDiverTimer] == 0) {
+      if (!spawn_diver(g, rng)) return fail(failed);
+      g[kDiverTimer] = kDiverSpawnSpeed;
+    }
+    if (a == kFire && g[kShotTimer] == 0) {
+      const int32_t v[3] = {g[kSubX], g[kSubY], g[kSubOr]};
+      if (!friendly.append(v, &g[kNextId])) return fail(failed);
+      g[kShotTimer] = kShotCoolDown;
+    } else if (a == kLeft) {
+      g[kSubX] = g[kSubX] > 0 ? g[kSubX] - 1 : 0;
+      g[kSubOr] = 0;
+    } else if (a == kRight) {
+      g[kSubX] = g[kSubX] < 9 ? g[kSubX] + 1 : 9;
+      g[kSubOr] = 1;
+    } else if (a == kUp) {
+      g[kSubY] = g[kSubY] > 0 ? g[kSubY] - 1 : 0;
+    } else if (a == kDown) {
+      g[kSubY] = g[kSubY] < 8 ? g[kSubY] + 1 : 8;
+    }
+
+    // Each loop below: `for obj in reversed(lst)`, CPython's way (by index, stopping once the
+    // index is past the end).
+    for (int i = friendly.count() - 1; i >= 0 && i < friendly.count(); --i) {
+      Held bullet(&friendly, i);
+      bullet.v[0] += bullet.v[2] ? 1 : -1;
+      bullet.store();
+      if (bullet.v[0] < 0 || bullet.v[0] > 9) {
+        friendly.remove_equal(bullet.v);
+      } else if (!shoot_first(&fish, &friendly, bullet.v, &reward)) {
+        shoot_first(&subs, &friendly, bullet.v, &reward);
+      }
+    }
+
+    for (int i = divers.count() - 1; i >= 0 && i < divers.count(); --i) {
+      Held diver(&divers, i);
+      if (at_sub(g, diver.v) && g[kDiverCount] < 6) {
+        divers.remove_equal(diver.v);
+        g[kDiverCount] += 1;
+      } else if (diver.v[3] == 0) {
+        diver.v[3] = kDiverMoveInterval;
+        diver.v[0] += diver.v[2] ? 1 : -1;
+        diver.store();
+        if (diver.v[0] < 0 || diver.v[0] > 9) {
+          divers.remove_equal(diver.v);
+        } else if (at_sub(g, diver.v) && g[kDiverCount] < 6) {
+          divers.remove_equal(diver.v);
+          g[kDiverCount] += 1;
+        }
+      } else {
+        diver.v[3] -= 1;
+        diver.store();
+      }
+    }
+
+    for (int i = subs.count() - 1; i >= 0 && i < subs.count(); --i) {
+      Held sub(&subs, i);
+      if (at_sub(g, sub.v)) g[kTerminal] = 1;
+      if (sub.v[3] == 0) {
+        sub.v[3] = g[kMoveSpeed];
+        sub.v[0] += sub.v[2] ? 1 : -1;
+        sub.store();
+        if (sub.v[0] < 0 || sub.v[0] > 9) {
+          subs.remove_equal(sub.v);
+        } else if (at_sub(g, sub.v)) {
+          g[kTerminal] = 1;
+        } else {
+          meet_bullet(&subs, &friendly, sub.v, &reward);
+        }
+      } else {
+        sub.v[3] -= 1;
+        sub.store();
+      }
+      // The sub shoots even when it was just removed (the Python object still exists).
+      if (sub.v[4] == 0) {
+        sub.v[4] = kEnemyShotInterval;
+        sub.store();
+        const int32_t shot[3] = {sub.v[0], sub.v[1], sub.v[2]};
+        if (!enemy_bullets.append(shot, &g[kNextId])) return fail(failed);
+      } else {
+        sub.v[4] -= 1;
+        sub.store();
+      }
+    }
+
+    for (int i = enemy_bullets.count() - 1; i >= 0 && i < enemy_bullets.count(); --i) {
+      Held bullet(&enemy_bullets, i);
+      if (at_sub(g, bullet.v)) g[kTerminal] = 1;
+      bullet.v[0] += bullet.v[2] ? 1 : -1;
+      bullet.store();
+      if (bullet.v[0] < 0 || bullet.v[0] > 9) {
+        enemy_bullets.remove_equal(bullet.v);
+      } else if (at_sub(g, bullet.v)) {
+        g[kTerminal] = 1;
+      }
+    }
+
+    for (int i = fish.count() - 1; i >= 0 && i < fish.count(); --i) {
+      Held one(&fish, i);
+      if (at_sub(g, one.v)) g[kTerminal] = 1;
+      if (one.v[3] == 0) {
+        one.v[3] = g[kMoveSpeed];
+        one.v[0] += one.v[2] ? 1 : -1;
+        one.store();
+        if (one.v[0] < 0 || one.v[0] > 9) {
+          fish.remove_equal(one.v);
+        } else if (at_sub(g, one.v)) {
+          g[kTerminal] = 1;
+        } else {
+          meet_bullet(&fish, &friendly, one.v, &reward);
+        }
+      } else {
+        one.v[3] -= 1;
+        one.store();
+      }
+    }
+
+    g[kSpawnTimer] -= g[kSpawnTimer] > 0;
+    g[kDiverTimer] -= g[kDiverTimer] > 0;
+    g[kShotTimer] -= g[kShotTimer] > 0;
+    if (g[kOxygen] <= 0) g[kTerminal] = 1;
+    if (g[kSubY] > 0) {
+      g[kOxygen] -= 1;
+      g[kSurface] = 0;
+    } else if (!g[kSurface]) {
+      if (g[kDiverCount] == 0) {
+        g[kTerminal] = 1;
+      } else {
+        reward += surface(g);
+      }
+    }
+    *terminal = g[kTerminal] != 0;
+    return reward;
+  }
+
+  static void reset(int32_t* g, uint8_t*, BitGen*) {
+    const int32_t ramping = g[kRamping];  // a setting, not a variable the reset sets
+    std::memset(g, 0, sizeof(int32_t) * kLastAction);
+    g[kOxygen] = kMaxOxygen;
+    g[kSubX] = 5;
+    g[kSpawnSpeed] = 20;
+    g[kSpawnTimer] = 20;
+    g[kDiverTimer] = kDiverSpawnSpeed;
+    g[kMoveSpeed] = 5;
+    g[kSurface] = 1;
+    g[kRamping] = ramping;
+    g[kNextId] = 1;
+    g[kLastAction] = 0;
+  }
+
+  static void mark(float* out, int channel, int y, int x) {
+    out[channel * kCells + y * kSize + x] = 1.0f;
+  }
+
+  static void write_state(const int32_t* g, const uint8_t*, float* out) {
+    std::memset(out, 0, sizeof(float) * kChannels * kCells);
+    int32_t* row = const_cast<int32_t*>(g);
+    mark(out, 0, g[kSubY], g[kSubX]);
+    int back_x = g[kSubOr] ? g[kSubX] - 1 : g[kSubX] + 1;
+    if (back_x < 0) back_x += kSize;  // numpy's negative index
+    mark(out, 1, g[kSubY], back_x);
+    const int oxygen = g[kOxygen] > 0 ? g[kOxygen] : 0;
+    const int gauge = floor_div(oxygen * 10, kMaxOxygen);
+    for (int c = 0; c < (gauge < kSize ? gauge : kSize); ++c) mark(out, 7, 9, c);
+    int start = 9 - g[kDiverCount];  // the slice [9 - diver_count : 9]
+    if (start < 0) start = start + kSize < 0 ? 0 : start + kSize;
+    for (int c = start; c < 9; ++c) mark(out, 8, 9, c);
+    const ObjectList friendly = list(row, kFriendly), enemy_bullets = list(row, kEnemyBullets);
+    for (int k = 0; k < friendly.count(); ++k) {
+      mark(out, 2, friendly.values(k)[1], friendly.values(k)[0]);
+    }
+    for (int k = 0; k < enemy_bullets.count(); ++k) {
+      mark(out, 4, enemy_bullets.values(k)[1], enemy_bullets.values(k)[0]);
+    }
+    const int channels[3] = {5, 6, 9};  // fish, subs, divers; each with its trail
+    const int lists[3] = {kFish, kSubs, kDivers};
+    for (int j = 0; j < 3; ++j) {
+      const ObjectList l = list(row, lists[j]);
+      for (int k = 0; k < l.count(); ++k) {
+        const int32_t* v = l.values(k);
+        mark(out, channels[j], v[1], v[0]);
+        const int back = v[2] ? v[0] - 1 : v[0] + 1;
+        if (back >= 0 && back <= 9) mark(out, 3, v[1], back);
+      }
+    }
+  }
+};
+
 using routine_gym::Buffers;
 
 const char kStepArgs[] =
@@ -643,7 +1068,8 @@ const char kStepArgs[] =
     "inner_states float32 (E, L, C, 10, 10) or None, states and final_states float32\n"
     "(E, C, 10, 10). Breakout: F 8, M 1 (bricks), C 4; Space Invaders: F 10, M 3 (aliens,\n"
     "friendly bullets, enemy bullets), C 6; Freeway: F 37 (4 variables, 8 cars of 4), M 0, C 7;\n"
-    "Asterix: F 51 (10 variables, 8 entity slots of 5), M 0, C 4.";
+    "Asterix: F 51 (10 variables, 8 entity slots of 5), M 0, C 4; Seaquest: F 1173 (15\n"
+    "variables, 5 lists of up to 48 objects), M 0, C 10.";
 
 template <typename Game>
 PyObject* step_games(PyObject* args) {
@@ -746,8 +1172,9 @@ PyObject* step_games(PyObject* args) {
       int64_t primitive = sequence[k];
       if (rng->next_double(rng->state) < sticky) primitive = g[Game::kLastAction];
       g[Game::kLastAction] = static_cast<int32_t>(primitive);
-      const int reward = Game::act(g, board, primitive, &term, rng);
-      if (reward < 0) {
+      bool failed = false;
+      const int reward = Game::act(g, board, primitive, &term, rng, &failed);
+      if (failed) {
         PyErr_Format(PyExc_ValueError, "game %zd: %s", i, Game::kActError);
         return nullptr;
       }
@@ -779,24 +1206,27 @@ PyObject* space_invaders_step(PyObject*, PyObject* args) {
 }
 PyObject* freeway_step(PyObject*, PyObject* args) { return step_games<Freeway>(args); }
 PyObject* asterix_step(PyObject*, PyObject* args) { return step_games<Asterix>(args); }
+PyObject* seaquest_step(PyObject*, PyObject* args) { return step_games<Seaquest>(args); }
 
 const std::string kBreakoutDoc = std::string("breakout_step") + kStepArgs;
 const std::string kSpaceInvadersDoc = std::string("space_invaders_step") + kStepArgs;
 const std::string kFreewayDoc = std::string("freeway_step") + kStepArgs;
 const std::string kAsterixDoc = std::string("asterix_step") + kStepArgs;
+const std::string kSeaquestDoc = std::string("seaquest_step") + kStepArgs;
 
 PyMethodDef kMethods[] = {
     {"breakout_step", breakout_step, METH_VARARGS, kBreakoutDoc.c_str()},
     {"space_invaders_step", space_invaders_step, METH_VARARGS, kSpaceInvadersDoc.c_str()},
     {"freeway_step", freeway_step, METH_VARARGS, kFreewayDoc.c_str()},
     {"asterix_step", asterix_step, METH_VARARGS, kAsterixDoc.c_str()},
+    {"seaquest_step", seaquest_step, METH_VARARGS, kSeaquestDoc.c_str()},
     {nullptr, nullptr, 0, nullptr},
 };
 
 PyModuleDef kModule = {
     PyModuleDef_HEAD_INIT, "_minatar_core",
-    "Compiled MinAtar Breakout, Space Invaders, Freeway and Asterix for "
-    "routine_gym.envs.minatar_vector (see the source's header).",
+    "Compiled MinAtar games (all five) for routine_gym.envs.minatar_vector (see the source's "
+    "header).",
     -1, kMethods, nullptr, nullptr, nullptr, nullptr,
 };
 

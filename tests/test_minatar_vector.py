@@ -11,7 +11,7 @@ from routine_gym.envs.factory import make_vector_env
 from routine_gym.envs.minatar_vector import MinAtarVectorEnv, _core_row
 
 COMPILED_IDS = ("MinAtar/Breakout-v1", "MinAtar/SpaceInvaders-v1", "MinAtar/Freeway-v1",
-                "MinAtar/Asterix-v1")
+                "MinAtar/Asterix-v1", "MinAtar/Seaquest-v1")  # all five
 
 
 def _flat(info: dict, prefix: str = "") -> dict:
@@ -36,8 +36,7 @@ def _assert_same_steps(env_id, routines, record, env_kwargs, steps, num_envs=6, 
     python = make_vector_env(env_id, num_envs, routines=routines, record_observations=record,
                              env_kwargs=env_kwargs, batched=False)
     assert isinstance(batched, MinAtarVectorEnv)
-    # Breakout, Space Invaders, Freeway and Asterix run in the compiled core unless told
-    # otherwise; Seaquest in Python.
+    # Every game runs in the compiled core unless told otherwise.
     assert batched.compiled == (compiled is not False and env_id in COMPILED_IDS)
     assert isinstance(python, gym.vector.SyncVectorEnv)
     assert batched.single_observation_space == python.single_observation_space
@@ -113,6 +112,9 @@ def test_breakout_compiled_or_not_returns_what_the_python_path_returns(routines,
     ("MinAtar/Asterix-v1", [[1, 1, 1], [3, 3]], True,
      {"sticky_action_prob": 0.5, "max_episode_steps": 30}, 300),
     ("MinAtar/Asterix-v1", None, False, {"difficulty_ramping": False}, 600),
+    ("MinAtar/Seaquest-v1", [[5, 5, 1], [2, 2, 2]], True,
+     {"sticky_action_prob": 0.5, "max_episode_steps": 30}, 300),
+    ("MinAtar/Seaquest-v1", None, False, {"difficulty_ramping": False}, 1500),
 ])
 def test_the_other_compiled_games_return_what_the_python_path_returns(env_id, routines, record,
                                                                      env_kwargs, steps):
@@ -382,6 +384,101 @@ def test_the_compiled_core_steps_any_asterix_state_as_minatar_does(sticky, rampi
     assert (ramps > 10) == ramping
 
 
+def _draw_seaquest_state(rng):
+    """A Seaquest state: the submarine anywhere (often at the surface), oxygen and divers at any
+    count (surfacing with none, some, or six; oxygen run out), objects of every kind around it
+    and each other, often on the same cell, sometimes two equal in value (the game's loops
+    remove the first equal element while they iterate), their timers often due."""
+    sub_x, sub_y = int(rng.integers(10)), 0 if rng.random() < 0.3 else int(rng.integers(9))
+
+    def near(spread=1):
+        if rng.random() < 0.6:
+            return (int(np.clip(sub_x + rng.integers(-spread, spread + 1), 0, 9)),
+                    int(np.clip(sub_y + rng.integers(-1, 2), 0, 9)))
+        return int(rng.integers(10)), int(rng.integers(1, 9))
+
+    def objects(make, most):
+        items = [make(*near()) for _ in range(int(rng.integers(0, most + 1)))]
+        if items and rng.random() < 0.3:
+            items.insert(int(rng.integers(len(items) + 1)), list(items[rng.integers(len(items))]))
+        return items
+
+    def flag():
+        return bool(rng.integers(2))
+
+    return {
+        "sub_x": sub_x, "sub_y": sub_y, "sub_or": True if sub_x == 9 else flag(),
+        "oxygen": int(rng.choice([-1, 0, 1, 37, 150, 200])),
+        "diver_count": int(rng.integers(-1, 7)), "surface": flag(),
+        "e_spawn_speed": int(rng.integers(1, 21)), "e_spawn_timer": int(rng.integers(0, 3)),
+        "d_spawn_timer": int(rng.integers(0, 3)), "move_speed": int(rng.integers(2, 6)),
+        "ramp_index": int(rng.integers(0, 5)), "shot_timer": int(rng.integers(0, 3)),
+        "f_bullets": objects(lambda x, y: [x, y, flag()], 3),
+        "e_bullets": objects(lambda x, y: [x, y, flag()], 3),
+        "e_fish": objects(lambda x, y: [x, y, flag(), int(rng.integers(0, 3))], 4),
+        "e_subs": objects(lambda x, y: [x, y, flag(), int(rng.integers(0, 3)),
+                                        int(rng.integers(0, 3))], 4),
+        "divers": objects(lambda x, y: [x, y, flag(), int(rng.integers(0, 2))], 3),
+        "last_action": int(rng.integers(0, 6)),
+    }
+
+
+def _seaquest_values(row):
+    """A Seaquest core row without the objects' ids and the next id (the Python game has none)."""
+    row, offset = list(row), 15
+    row[14] = 0
+    for width in (3, 3, 4, 5, 4):
+        for k in range(48):
+            row[offset + 1 + k * (width + 1)] = 0
+        offset += 1 + 48 * (width + 1)
+    return row
+
+
+@pytest.mark.parametrize("sticky,ramping", [(0.0, True), (0.3, True), (0.1, False)])
+def test_the_compiled_core_steps_any_seaquest_state_as_minatar_does(sticky, ramping):
+    # From states drawn anywhere, one step of each action against MinAtar's own `act` and
+    # `state`: bullets meeting fish and subs, enemies moving onto bullets, divers picked up,
+    # surfacing with no diver, some, or six (the oxygen bonus), oxygen running out, spawns
+    # refused for a lane in use, a removed sub still shooting, equal objects removed in the
+    # lists' order; the games' variables and their generators' states after it too.
+    kwargs = {"sticky_action_prob": sticky, "difficulty_ramping": ramping}
+    compiled, python = (MinAtarVectorEnv("MinAtar/Seaquest-v1", 8, env_kwargs=kwargs,
+                                         compiled=c) for c in (True, False))
+    for envs in (compiled, python):
+        envs.reset(seed=11)
+    rng = np.random.default_rng(4)
+    rewards = ends = bonus = ramps = 0
+    for _ in range(400):
+        for i in range(8):
+            state = _draw_seaquest_state(rng)
+            for envs in (compiled, python):
+                _set_state(envs, i, {key: [list(v) for v in value]
+                                     if isinstance(value, list) else value
+                                     for key, value in state.items()})
+        compiled._load_core()
+        actions = rng.integers(0, 6, 8)
+        speeds = [(g.env.e_spawn_speed, g.env.move_speed) for g in python._games]
+        out_c, out_p = compiled.step(actions), python.step(actions)
+        for b, p in zip(out_c[:4], out_p[:4], strict=True):
+            assert b.dtype == p.dtype and np.array_equal(b, p)
+        done = out_p[2] | out_p[3]
+        for i in range(8):
+            if done[i]:
+                assert np.array_equal(out_c[4]["final_obs"][i], out_p[4]["final_obs"][i])
+            else:
+                game = python._games[i].env
+                row = _core_row(game, compiled._core_fields) + [python._games[i].last_action]
+                assert _seaquest_values(compiled._core[i].tolist()) == _seaquest_values(row)
+                ramps += int((game.e_spawn_speed, game.move_speed) != speeds[i])
+            c_state, p_state = (e._games[i].random.get_state() for e in (compiled, python))
+            assert c_state[2] == p_state[2] and np.array_equal(c_state[1], p_state[1])
+        ends += int(done.sum())
+        rewards += int((out_p[1] > 0).sum())
+        bonus += int((out_p[1] > 1).sum())
+    assert rewards > 100 and ends > 100 and bonus > 5
+    assert (ramps > 10) == ramping
+
+
 def test_the_compiled_core_shares_each_games_random_stream_with_python():
     # The sticky draws and the reset's coin come from the game's own RandomState: after the
     # same steps, the compiled games' generators are where the Python games' are.
@@ -395,9 +492,25 @@ def test_the_compiled_core_shares_each_games_random_stream_with_python():
         assert c.random.rand() == p.random.rand()
 
 
-def test_compiled_true_is_refused_where_there_is_no_core():
+def test_compiled_true_is_refused_where_there_is_no_core(monkeypatch):
+    import routine_gym.envs.minatar_vector as minatar_vector
+
+    # Every MinAtar game has a core now; a game without one (as Seaquest was) is refused.
+    monkeypatch.setattr(minatar_vector, "COMPILED_GAMES", ("breakout",))
     with pytest.raises(ValueError, match="MinAtar/Seaquest-v1 has no compiled core"):
         MinAtarVectorEnv("MinAtar/Seaquest-v1", 2, compiled=True)
+    assert not MinAtarVectorEnv("MinAtar/Seaquest-v1", 2).compiled
+
+
+def test_without_the_built_core_compiled_true_is_refused_and_none_steps_in_python(monkeypatch):
+    import routine_gym.envs.minatar_vector as minatar_vector
+
+    monkeypatch.setattr(minatar_vector, "_minatar_core", None)
+    with pytest.raises(ImportError, match="needs routine_gym._minatar_core, which is not built"):
+        MinAtarVectorEnv("MinAtar/Asterix-v1", 2, compiled=True)
+    envs = MinAtarVectorEnv("MinAtar/Asterix-v1", 2)
+    envs.reset(seed=0)
+    assert not envs.compiled and envs.step(np.array([0, 1]))[0].shape == (2, 4, 10, 10)
 
 
 def test_a_routine_cut_by_the_time_limit_counts_its_executed_steps():

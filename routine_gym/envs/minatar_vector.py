@@ -17,13 +17,13 @@ once:
   episode ended, each with its `_key` mask, exactly as `SyncVectorEnv` with same-step autoreset
   arranges them.
 
-Breakout, Space Invaders, Freeway and Asterix have a compiled core
-(`routine_gym/_minatar_core.cpp`, built by `pip install`): the same game, its random draws
-(sticky actions, Breakout's serve, Freeway's cars, Asterix's spawns) taken from each game's own
-`RandomState`, stepped for all games in one C++ call that writes the observations straight into
-the float32 batch. A step of 16 games then costs 6-11 µs instead of ~50 (Breakout, Asterix),
-~100 (Freeway) or ~270 (Space Invaders). Seaquest (and these four with `compiled=False`, or
-where the module was not built) goes through the Python loop.
+Every game has a compiled core (`routine_gym/_minatar_core.cpp`, built by `pip install`): the
+same game, its random draws (sticky actions, Breakout's serve, Freeway's cars, Asterix's and
+Seaquest's spawns) taken from each game's own `RandomState`, stepped for all games in one C++
+call that writes the observations straight into the float32 batch. A step of 16 games then
+costs 6-11 µs instead of ~50 (Breakout, Asterix), ~70 (Seaquest), ~100 (Freeway) or ~270 (Space
+Invaders). With `compiled=False`, or where the module was not built, the games go through the
+Python loop.
 
 `tests/test_minatar_vector.py` checks, on fixed seeds and actions, that it returns what the
 Python path returns (observations, rewards, flags and every info array), for plain actions and
@@ -53,7 +53,8 @@ __all__ = ["MinAtarVectorEnv"]
 
 #: Per game with a compiled core (by MinAtar's name): the game's variables in the order of a
 #: row of the core's int32 array (`_minatar_core.cpp`'s `Field`, the last action after them;
-#: Freeway's `cars`, 8 lists of 4, as 32 entries; Asterix's `entities`, 8 slots, as 40), its
+#: Freeway's `cars`, 8 lists of 4, as 32 entries; Asterix's `entities`, 8 slots, as 40;
+#: Seaquest's five lists as `_SEAQUEST_LISTS` lays them out), its
 #: 10×10 maps in the order of the core's uint8 maps, and the core's step function.
 _CORES = {
     "breakout": (("ball_x", "ball_y", "ball_dir", "pos", "strike", "last_x", "last_y"),
@@ -66,7 +67,15 @@ _CORES = {
     "asterix": (("player_x", "player_y", "spawn_speed", "spawn_timer", "move_speed",
                  "move_timer", "ramp_timer", "ramp_index", "terminal", "ramping", "entities"),
                 (), "asterix_step"),
+    "seaquest": (("oxygen", "diver_count", "sub_x", "sub_y", "sub_or", "e_spawn_speed",
+                  "e_spawn_timer", "d_spawn_timer", "move_speed", "ramp_index", "shot_timer",
+                  "surface", "terminal", "ramping", "next_id", "lists"), (), "seaquest_step"),
 }
+#: Seaquest's lists in the core's row (`ObjectList`): their values per element and how many
+#: elements the core holds (each list: its length, then that many [id, values...] records).
+_SEAQUEST_LISTS = (("f_bullets", 3), ("e_bullets", 3), ("e_fish", 4), ("e_subs", 5),
+                   ("divers", 4))
+_SEAQUEST_CAPACITY = 48
 #: The games with a compiled core, by MinAtar's name.
 COMPILED_GAMES = tuple(_CORES)
 
@@ -81,6 +90,20 @@ def _core_row(game: Any, fields: tuple[str, ...]) -> list[int]:
         elif name == "entities":  # Asterix's slots: [present, x, y, moves right, gold]
             for entity in game.entities:
                 row += [0] * 5 if entity is None else [1, *(int(v) for v in entity)]
+        elif name == "next_id":  # Seaquest: the id the core gives its next new object
+            row.append(1 + sum(len(getattr(game, lst)) for lst, _ in _SEAQUEST_LISTS))
+        elif name == "lists":  # Seaquest's objects, numbered from 1 in the lists' order
+            next_id = 1
+            for lst, width in _SEAQUEST_LISTS:
+                items = getattr(game, lst)
+                if len(items) > _SEAQUEST_CAPACITY:
+                    raise ValueError(f"Seaquest's {lst} holds {len(items)} objects; the "
+                                     f"compiled core holds {_SEAQUEST_CAPACITY}")
+                row.append(len(items))
+                for item in items:
+                    row += [next_id, *(int(v) for v in item)]
+                    next_id += 1
+                row += [0] * ((_SEAQUEST_CAPACITY - len(items)) * (width + 1))
         else:
             row.append(int(getattr(game, name)))
     return row
@@ -111,8 +134,8 @@ class MinAtarVectorEnv(VectorEnv):
             ``info["routine_observations"]``.
         env_kwargs: `gym.make` keyword arguments (`sticky_action_prob`, `difficulty_ramping`,
             `max_episode_steps`).
-        compiled: step the games in the compiled core (all but Seaquest): None uses it where
-            the game has one and it was built, True requires it, False keeps the Python loop.
+        compiled: step the games in the compiled core: None uses it where the game has one (all
+            five do) and it was built, True requires it, False keeps the Python loop.
             With the core the games' state lives in it between resets: reseed and reset them
             through this env's `reset`, not through `games[i]`.
     """
