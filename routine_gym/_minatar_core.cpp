@@ -831,6 +831,30 @@ struct Seaquest {
     }
   }
 
+  // The march of an enemy sub or fish, the same in both loops: the submarine met where it is,
+  // a move when its timer is due (off the board, onto the submarine, or onto a friendly
+  // bullet, which both lose), the timer counted down otherwise.
+  static void march(int32_t* g, ObjectList* enemies, ObjectList* friendly, Held* enemy,
+                    int* reward) {
+    int32_t* v = enemy->v;
+    if (at_sub(g, v)) g[kTerminal] = 1;
+    if (v[3] == 0) {
+      v[3] = g[kMoveSpeed];
+      v[0] += v[2] ? 1 : -1;
+      enemy->store();
+      if (v[0] < 0 || v[0] > 9) {
+        enemies->remove_equal(v);
+      } else if (at_sub(g, v)) {
+        g[kTerminal] = 1;
+      } else {
+        meet_bullet(enemies, friendly, v, reward);
+      }
+    } else {
+      v[3] -= 1;
+      enemy->store();
+    }
+  }
+
   static int fail(bool* failed) {
     *failed = true;
     return 0;
@@ -922,22 +946,7 @@ struct Seaquest {
 
     for (int i = subs.count() - 1; i >= 0 && i < subs.count(); --i) {
       Held sub(&subs, i);
-      if (at_sub(g, sub.v)) g[kTerminal] = 1;
-      if (sub.v[3] == 0) {
-        sub.v[3] = g[kMoveSpeed];
-        sub.v[0] += sub.v[2] ? 1 : -1;
-        sub.store();
-        if (sub.v[0] < 0 || sub.v[0] > 9) {
-          subs.remove_equal(sub.v);
-        } else if (at_sub(g, sub.v)) {
-          g[kTerminal] = 1;
-        } else {
-          meet_bullet(&subs, &friendly, sub.v, &reward);
-        }
-      } else {
-        sub.v[3] -= 1;
-        sub.store();
-      }
+      march(g, &subs, &friendly, &sub, &reward);
       // The sub shoots even when it was just removed (the Python object still exists).
       if (sub.v[4] == 0) {
         sub.v[4] = kEnemyShotInterval;
@@ -964,22 +973,7 @@ struct Seaquest {
 
     for (int i = fish.count() - 1; i >= 0 && i < fish.count(); --i) {
       Held one(&fish, i);
-      if (at_sub(g, one.v)) g[kTerminal] = 1;
-      if (one.v[3] == 0) {
-        one.v[3] = g[kMoveSpeed];
-        one.v[0] += one.v[2] ? 1 : -1;
-        one.store();
-        if (one.v[0] < 0 || one.v[0] > 9) {
-          fish.remove_equal(one.v);
-        } else if (at_sub(g, one.v)) {
-          g[kTerminal] = 1;
-        } else {
-          meet_bullet(&fish, &friendly, one.v, &reward);
-        }
-      } else {
-        one.v[3] -= 1;
-        one.store();
-      }
+      march(g, &fish, &friendly, &one, &reward);
     }
 
     g[kSpawnTimer] -= g[kSpawnTimer] > 0;

@@ -308,29 +308,19 @@ PyObject* step(PyObject* self_obj, PyObject* action) {
     return nullptr;
   }
   // operator.index(action), as the Python step: ints, numpy integers, anything with __index__.
-  Py_ssize_t a;
-  if (PyLong_CheckExact(action)) {
-    int overflow = 0;
-    const long long value = PyLong_AsLongLongAndOverflow(action, &overflow);
-    if (overflow != 0 || value < 0 || value >= self->num_actions) {
-      return bad_action(self, action, true);
-    }
-    a = static_cast<Py_ssize_t>(value);
-  } else {
-    PyObject* index = PyNumber_Index(action);
-    if (index == nullptr) {
-      if (!PyErr_ExceptionMatches(PyExc_TypeError)) return nullptr;
-      PyErr_Clear();
-      return bad_action(self, action, false);
-    }
-    int overflow = 0;
-    const long long value = PyLong_AsLongLongAndOverflow(index, &overflow);
-    Py_DECREF(index);
-    if (overflow != 0 || value < 0 || value >= self->num_actions) {
-      return bad_action(self, action, true);
-    }
-    a = static_cast<Py_ssize_t>(value);
+  PyObject* as_int = PyLong_CheckExact(action) ? Py_NewRef(action) : PyNumber_Index(action);
+  if (as_int == nullptr) {
+    if (!PyErr_ExceptionMatches(PyExc_TypeError)) return nullptr;
+    PyErr_Clear();
+    return bad_action(self, action, false);
   }
+  int overflow = 0;
+  const long long value = PyLong_AsLongLongAndOverflow(as_int, &overflow);
+  Py_DECREF(as_int);
+  if (overflow != 0 || value < 0 || value >= self->num_actions) {
+    return bad_action(self, action, true);
+  }
+  const Py_ssize_t a = static_cast<Py_ssize_t>(value);
 
   Slot* slot = &self->ring[self->next_slot];
   self->next_slot = (self->next_slot + 1) % kRing;
