@@ -187,11 +187,15 @@ class RoutineActionWrapper(
         self._sequence_buffers = [
             memoryview(row) for row in padded_actions(self._sequences, self.max_routine_length)
         ]
-        self._new_info_blocks()
         self._stepper = None
         compiled = (_Stepper is not None and type(self).step is RoutineActionWrapper.step
                     and (self._array_observations or not self.record_observations))
-        if compiled:
+        if not compiled:
+            self._new_info_blocks()
+        else:
+            # The Python step's info blocks only if it is ever called (`RoutineActionWrapper.
+            # step(wrapper, a)`): its first call finds no row and makes them.
+            self._rows = iter(())
             record = self.record_observations
             obs_space = self.env.observation_space
             self._stepper = _Stepper(
