@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import copy
+from types import SimpleNamespace
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -188,13 +191,46 @@ def test_the_compiled_core_steps_any_breakout_state_as_minatar_does(sticky):
     assert refills > 10 and ends > 100  # both branches were compared, many times
 
 
-def _invaders_pair(num_envs, sticky, ramping=True):
-    kwargs = {"sticky_action_prob": sticky, "difficulty_ramping": ramping}
-    pair = [MinAtarVectorEnv("MinAtar/SpaceInvaders-v1", num_envs, env_kwargs=kwargs,
-                             compiled=c) for c in (True, False)]
-    for envs in pair:
+def _drawn_steps(env_id, kwargs, draw, seed, rounds, values=list):
+    """One step of 8 games from states drawn by `draw(rng)`, `rounds` times, in the compiled
+    core and in MinAtar's own `act` and `state` (random actions of the agent's action space).
+    Asserts both return the same step and final observations, that the games that go on hold
+    the same variables (the core's row, through `values`, and maps against the Python game's)
+    and that every game's generator is in the same state. Yields the Python games as they were
+    before the step, the games themselves, and the step's rewards and ends, for the caller's
+    counts of the branches it reached."""
+    compiled, python = (MinAtarVectorEnv(env_id, 8, env_kwargs=kwargs, compiled=c)
+                        for c in (True, False))
+    for envs in (compiled, python):
         envs.reset(seed=11)
-    return pair
+    rng = np.random.default_rng(seed)
+    for _ in range(rounds):
+        for i in range(8):
+            state = draw(rng)
+            for envs in (compiled, python):
+                _set_state(envs, i, copy.deepcopy(state))
+        compiled._load_core()
+        actions = rng.integers(0, compiled.single_action_space.n, 8)
+        before = [SimpleNamespace(**{key: copy.deepcopy(value) for key, value
+                                     in vars(environment.env).items() if key != "random"})
+                  for environment in python._games]  # the game's variables, not its generator
+        out_c, out_p = compiled.step(actions), python.step(actions)
+        for b, p in zip(out_c[:4], out_p[:4], strict=True):
+            assert b.dtype == p.dtype and np.array_equal(b, p)
+        done = out_p[2] | out_p[3]
+        for i in range(8):
+            environment = python._games[i]
+            if done[i]:
+                assert np.array_equal(out_c[4]["final_obs"][i], out_p[4]["final_obs"][i])
+            else:
+                row = _core_row(environment.env, compiled._core_fields)
+                assert values(compiled._core[i].tolist()) == values(
+                    row + [environment.last_action])
+                for k, name in enumerate(compiled._core_maps):
+                    assert np.array_equal(compiled._maps[i, k], getattr(environment.env, name))
+            c_state, p_state = (e._games[i].random.get_state() for e in (compiled, python))
+            assert c_state[2] == p_state[2] and np.array_equal(c_state[1], p_state[1])
+        yield before, [environment.env for environment in python._games], out_p[1], done
 
 
 def _draw_invaders_state(rng):
@@ -223,34 +259,16 @@ def test_the_compiled_core_steps_any_space_invaders_state_as_minatar_does(sticky
     # From states drawn anywhere (aliens at the walls and in the cannon's row, a march or a
     # shot due, a wave cleared by this step's kills), one step of each action in the compiled
     # core against MinAtar's own `act` and `state`, in both directions of the march.
-    compiled, python = _invaders_pair(8, sticky, ramping)
-    rng = np.random.default_rng(1)
+    kwargs = {"sticky_action_prob": sticky, "difficulty_ramping": ramping}
     waves = ramps = ends = kills = 0
-    for _ in range(300):
-        for i in range(8):
-            state = _draw_invaders_state(rng)
-            _set_state(compiled, i, state)
-            _set_state(python, i, state)
-        compiled._load_core()
-        actions = rng.integers(0, 4, 8)
-        intervals = [g.env.enemy_move_interval for g in python._games]
-        out_c, out_p = compiled.step(actions), python.step(actions)
-        for b, p in zip(out_c[:4], out_p[:4], strict=True):
-            assert b.dtype == p.dtype and np.array_equal(b, p)
-        done = out_p[2] | out_p[3]
-        for i in np.flatnonzero(done):
-            assert np.array_equal(out_c[4]["final_obs"][i], out_p[4]["final_obs"][i])
-        for i in np.flatnonzero(~done):  # the games' variables too, where they go on
-            for key in ("enemy_move_interval", "alien_move_timer", "alien_shot_timer",
-                        "ramp_index", "shot_timer", "alien_dir"):
-                core_value = compiled._core[i, compiled._core_fields.index(key)]
-                assert core_value == getattr(python._games[i].env, key), key
-            new_wave = python._games[i].env.alien_map[:4, 2:8].all() and \
-                python._games[i].env.alien_map.sum() == 24
-            waves += int(new_wave)
-            ramps += int(python._games[i].env.enemy_move_interval < intervals[i])
+    for before, games, rewards, done in _drawn_steps("MinAtar/SpaceInvaders-v1", kwargs,
+                                                      _draw_invaders_state, 1, 300):
+        for i in np.flatnonzero(~done):
+            aliens = games[i].alien_map
+            waves += int(aliens[:4, 2:8].all() and aliens.sum() == 24)
+            ramps += int(games[i].enemy_move_interval < before[i].enemy_move_interval)
         ends += int(done.sum())
-        kills += int((out_p[1] > 0).sum())
+        kills += int((rewards > 0).sum())
     assert waves > 10 and ends > 100 and kills > 100
     assert (ramps > 10) == ramping
 
@@ -284,38 +302,14 @@ def test_the_compiled_core_steps_any_freeway_state_as_minatar_does(sticky):
     # cars hitting the chicken before and after they move, wrapping round, the clock running
     # out), one step of each action against MinAtar's own `act` and `state`; the games'
     # variables and their generators' states after it too.
-    kwargs = {"sticky_action_prob": sticky}
-    compiled, python = (MinAtarVectorEnv("MinAtar/Freeway-v1", 8, env_kwargs=kwargs,
-                                         compiled=c) for c in (True, False))
-    for envs in (compiled, python):
-        envs.reset(seed=11)
-    rng = np.random.default_rng(2)
     crossings = ends = hits = 0
-    for _ in range(300):
-        for i in range(8):
-            state = _draw_freeway_state(rng)
-            _set_state(compiled, i, {**state, "cars": [list(c) for c in state["cars"]]})
-            _set_state(python, i, {**state, "cars": [list(c) for c in state["cars"]]})
-        compiled._load_core()
-        actions = rng.integers(0, 3, 8)
-        before = [g.env.pos for g in python._games]
-        out_c, out_p = compiled.step(actions), python.step(actions)
-        for b, p in zip(out_c[:4], out_p[:4], strict=True):
-            assert b.dtype == p.dtype and np.array_equal(b, p)
-        done = out_p[2] | out_p[3]
-        for i in range(8):
-            if done[i]:
-                assert np.array_equal(out_c[4]["final_obs"][i], out_p[4]["final_obs"][i])
-            else:
-                game = python._games[i].env
-                row = [game.pos, game.move_timer, game.terminate_timer, int(game.terminal),
-                       *[v for car in game.cars for v in car], python._games[i].last_action]
-                assert compiled._core[i].tolist() == row
-                hits += int(game.pos == 9 and before[i] not in (8, 9) and out_p[1][i] == 0)
-            c_state, p_state = (e._games[i].random.get_state() for e in (compiled, python))
-            assert c_state[2] == p_state[2] and np.array_equal(c_state[1], p_state[1])
+    for before, games, rewards, done in _drawn_steps("MinAtar/Freeway-v1",
+                                                      {"sticky_action_prob": sticky},
+                                                      _draw_freeway_state, 2, 300):
+        for i in np.flatnonzero(~done):
+            hits += int(games[i].pos == 9 and before[i].pos not in (8, 9) and rewards[i] == 0)
         ends += int(done.sum())
-        crossings += int((out_p[1] > 0).sum())
+        crossings += int((rewards > 0).sum())
     assert crossings > 100 and ends > 100 and hits > 100
 
 
@@ -347,39 +341,17 @@ def test_the_compiled_core_steps_any_asterix_state_as_minatar_does(sticky, rampi
     # generator or into none, the ramp), one step of each action against MinAtar's own `act`
     # and `state`; the games' variables and their generators' states after it too.
     kwargs = {"sticky_action_prob": sticky, "difficulty_ramping": ramping}
-    compiled, python = (MinAtarVectorEnv("MinAtar/Asterix-v1", 8, env_kwargs=kwargs,
-                                         compiled=c) for c in (True, False))
-    for envs in (compiled, python):
-        envs.reset(seed=11)
-    rng = np.random.default_rng(3)
     gold = ends = ramps = spawns = 0
-    for _ in range(300):
-        for i in range(8):
-            state = _draw_asterix_state(rng)
-            for envs in (compiled, python):
-                _set_state(envs, i, {**state, "entities": [
-                    None if e is None else list(e) for e in state["entities"]]})
-        compiled._load_core()
-        actions = rng.integers(0, 5, 8)
-        speeds = [(g.env.spawn_speed, g.env.move_speed) for g in python._games]
-        counts = [sum(e is not None for e in g.env.entities) for g in python._games]
-        out_c, out_p = compiled.step(actions), python.step(actions)
-        for b, p in zip(out_c[:4], out_p[:4], strict=True):
-            assert b.dtype == p.dtype and np.array_equal(b, p)
-        done = out_p[2] | out_p[3]
-        for i in range(8):
-            if done[i]:
-                assert np.array_equal(out_c[4]["final_obs"][i], out_p[4]["final_obs"][i])
-            else:
-                game = python._games[i].env
-                row = _core_row(game, compiled._core_fields) + [python._games[i].last_action]
-                assert compiled._core[i].tolist() == row
-                ramps += int((game.spawn_speed, game.move_speed) != speeds[i])
-                spawns += int(sum(e is not None for e in game.entities) > counts[i])
-            c_state, p_state = (e._games[i].random.get_state() for e in (compiled, python))
-            assert c_state[2] == p_state[2] and np.array_equal(c_state[1], p_state[1])
+    for before, games, rewards, done in _drawn_steps("MinAtar/Asterix-v1", kwargs,
+                                                      _draw_asterix_state, 3, 300):
+        for i in np.flatnonzero(~done):
+            game, was = games[i], before[i]
+            ramps += int((game.spawn_speed, game.move_speed) != (was.spawn_speed,
+                                                                  was.move_speed))
+            spawns += int(sum(e is not None for e in game.entities)
+                          > sum(e is not None for e in was.entities))
         ends += int(done.sum())
-        gold += int((out_p[1] > 0).sum())
+        gold += int((rewards > 0).sum())
     assert gold > 100 and ends > 100 and spawns > 100
     assert (ramps > 10) == ramping
 
@@ -442,40 +414,17 @@ def test_the_compiled_core_steps_any_seaquest_state_as_minatar_does(sticky, ramp
     # refused for a lane in use, a removed sub still shooting, equal objects removed in the
     # lists' order; the games' variables and their generators' states after it too.
     kwargs = {"sticky_action_prob": sticky, "difficulty_ramping": ramping}
-    compiled, python = (MinAtarVectorEnv("MinAtar/Seaquest-v1", 8, env_kwargs=kwargs,
-                                         compiled=c) for c in (True, False))
-    for envs in (compiled, python):
-        envs.reset(seed=11)
-    rng = np.random.default_rng(4)
-    rewards = ends = bonus = ramps = 0
-    for _ in range(400):
-        for i in range(8):
-            state = _draw_seaquest_state(rng)
-            for envs in (compiled, python):
-                _set_state(envs, i, {key: [list(v) for v in value]
-                                     if isinstance(value, list) else value
-                                     for key, value in state.items()})
-        compiled._load_core()
-        actions = rng.integers(0, 6, 8)
-        speeds = [(g.env.e_spawn_speed, g.env.move_speed) for g in python._games]
-        out_c, out_p = compiled.step(actions), python.step(actions)
-        for b, p in zip(out_c[:4], out_p[:4], strict=True):
-            assert b.dtype == p.dtype and np.array_equal(b, p)
-        done = out_p[2] | out_p[3]
-        for i in range(8):
-            if done[i]:
-                assert np.array_equal(out_c[4]["final_obs"][i], out_p[4]["final_obs"][i])
-            else:
-                game = python._games[i].env
-                row = _core_row(game, compiled._core_fields) + [python._games[i].last_action]
-                assert _seaquest_values(compiled._core[i].tolist()) == _seaquest_values(row)
-                ramps += int((game.e_spawn_speed, game.move_speed) != speeds[i])
-            c_state, p_state = (e._games[i].random.get_state() for e in (compiled, python))
-            assert c_state[2] == p_state[2] and np.array_equal(c_state[1], p_state[1])
+    rewarded = ends = bonus = ramps = 0
+    for before, games, rewards, done in _drawn_steps("MinAtar/Seaquest-v1", kwargs,
+                                                      _draw_seaquest_state, 4, 400,
+                                                      values=_seaquest_values):
+        for i in np.flatnonzero(~done):
+            ramps += int((games[i].e_spawn_speed, games[i].move_speed)
+                         != (before[i].e_spawn_speed, before[i].move_speed))
         ends += int(done.sum())
-        rewards += int((out_p[1] > 0).sum())
-        bonus += int((out_p[1] > 1).sum())
-    assert rewards > 100 and ends > 100 and bonus > 5
+        rewarded += int((rewards > 0).sum())
+        bonus += int((rewards > 1).sum())
+    assert rewarded > 100 and ends > 100 and bonus > 5
     assert (ramps > 10) == ramping
 
 
