@@ -357,6 +357,7 @@ def main(args: Args) -> None:
         args.update_forward == "auto"
         and profile_for(args.env_id).network in ("nature_cnn", "impala_cnn"))
     rollout_obs = np.zeros((n + 1, e, *obs_shape), dtype=obs_dtype)  # + the state after it
+    a2c_discounts = np.full((n, e), args.gamma)
     decision_obs = rollout_obs[:n]
 
     # What a checkpoint holds; a resumed run starts where its checkpoint left off.
@@ -397,12 +398,14 @@ def main(args: Args) -> None:
             actions[step] = action
             decision_obs[step] = next_obs
             next_obs, reward, term, trunc, info = envs.step(action)
-            done = term | trunc
             terminated[step], truncated[step] = term, trunc
+            # Same-step autoreset: `final_obs` and `final_info` come when an episode ended.
+            ended = "final_obs" in info
 
             if args.mode == "a2c":  # lengths: all 1 (as allocated)
                 step_rewards[step, 0] = reward
             else:
+                done = term | trunc
                 lengths[step] = merge_final(info, "routine_length", done)
                 step_rewards[step] = merge_final(info, "routine_rewards", done).T
                 if args.mode == "rapl" and max_len > 1:
@@ -410,7 +413,7 @@ def main(args: Args) -> None:
                     inner_obs[step] = np.swapaxes(inner[:, : max_len - 1], 0, 1)
             if args.reward_scale != 1.0:
                 step_rewards[step] *= args.reward_scale
-            if trunc.any():  # bootstrap a cut episode from the value of its last observation
+            if ended and trunc.any():  # bootstrap a cut episode from its last obs's value
                 final_obs = np.stack([info["final_obs"][i] for i in np.flatnonzero(trunc)])
                 with torch.no_grad():
                     v = agent.get_value(torch.as_tensor(final_obs, device=device))
@@ -418,7 +421,7 @@ def main(args: Args) -> None:
 
             global_step += e if args.mode == "a2c" else int(lengths[step].sum())
             decisions += e
-            if done.any() and "episode" in info.get("final_info", {}):
+            if ended and "episode" in info["final_info"]:
                 final = info["final_info"]
                 for i in np.flatnonzero(final["_episode"]):
                     ret, length = float(final["episode"]["r"][i]), int(final["episode"]["l"][i])
@@ -430,9 +433,11 @@ def main(args: Args) -> None:
         routine_counts += chosen
         counts.add_counts(chosen, int(lengths.sum()))
 
-        # Returns. RAPL: discounted routine reward and γ^ℓ; MacroAction and A2C: summed reward
-        # and one γ per decision (identical for A2C, whose routines all have length 1).
-        if args.mode == "rapl":
+        # Returns. RAPL: discounted routine reward and γ^ℓ; MacroAction: summed reward and one γ
+        # per decision; A2C: a decision's one reward and γ (both others' numbers, with ℓ = 1).
+        if args.mode == "a2c":
+            rewards, discounts = step_rewards[:, 0], a2c_discounts
+        elif args.mode == "rapl":
             rewards, discounts = routine_reward_and_discount(step_rewards, lengths, args.gamma)
             if args.routine_discount == "authors":
                 discounts = routine_discount_minus_one(lengths, actions >= num_primitives,

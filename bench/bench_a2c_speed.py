@@ -266,11 +266,17 @@ def qbert_demo(env_id: str, requested: str | None, workdir: Path) -> tuple[str, 
 Stamp = tuple[float, int, int, float, "float | None"]
 
 
-def stream_progress(cmd: list[str]) -> tuple[list[Stamp], list[str], int, str]:
+def stream_progress(cmd: list[str], warmup: int,
+                    total: int) -> tuple[list[Stamp], list[str], int, str]:
     """Run a script's command line in a subprocess, stamping each progress line as it arrives.
 
-    Returns the stamps, the output lines before the first progress line, the exit code and
-    stderr."""
+    The process tree's CPU time is read only at the lines a measurement starts and ends at, the
+    first at or after `warmup` steps and those at or after `total`: reading it walks all of
+    /proc (~1 ms), which at every line (`--log-every 1000`: ~30 lines a second) took a few
+    percent of a core from the two-thread script being timed.
+
+    Returns the stamps (CPU time None where not read), the output lines before the first
+    progress line, the exit code and stderr."""
     stamps: list[Stamp] = []
     header: list[str] = []
     with tempfile.TemporaryFile("w+") as err:
@@ -282,8 +288,9 @@ def stream_progress(cmd: list[str]) -> tuple[list[Stamp], list[str], int, str]:
             match = PROGRESS.match(line.strip())
             if match:
                 step = int(match.group(1).replace(",", ""))
-                stamps.append((now, step, int(match.group(2)), float(match.group(3)),
-                               tree_cpu_seconds(proc.pid)))
+                first_timed = step >= warmup and not (stamps and stamps[-1][1] >= warmup)
+                cpu = tree_cpu_seconds(proc.pid) if first_timed or step >= total else None
+                stamps.append((now, step, int(match.group(2)), float(match.group(3)), cpu))
             elif not stamps:
                 header.append(line.rstrip())
         returncode = proc.wait()
@@ -305,7 +312,7 @@ def run_ours(name: str, config: Config, args, demo: str, run_dir: Path, repeat: 
     if config.async_envs:
         cmd.append("--async-envs")
     result = Result(name, repeat, shlex.join(cmd), str(threads), load_average())
-    stamps, header, result.returncode, stderr = stream_progress(cmd)
+    stamps, header, result.returncode, stderr = stream_progress(cmd, args.warmup, total)
     result.extra["routines"] = [h.strip() for h in header if h.strip().startswith("[")]
     if result.returncode != 0:
         result.error = stderr.strip().splitlines()[-1] if stderr.strip() else "no output"

@@ -100,7 +100,7 @@ def run_config(name: str, args, run_dir: Path, repeat: int, threads: int) -> Res
     if mode == "rapl":
         cmd += ["--demo", args.demo]
     result = Result(name, repeat, threads, shlex.join(cmd), load_average())
-    stamps, _, returncode, stderr = stream_progress(cmd)
+    stamps, _, returncode, stderr = stream_progress(cmd, args.warmup, args.warmup + args.steps)
     stderr = stderr.strip()
     if returncode != 0:
         result.error = stderr.splitlines()[-1] if stderr else f"exit code {returncode}"

@@ -1051,16 +1051,21 @@ using routine_gym::Buffers;
 
 const char kStepArgs[] =
     "(core, maps, rngs, sticky, actions, sequences, sequence_lengths, elapsed, limit, rewards,\n"
-    "    terminated, truncated, executed, step_rewards, inner_states, states, final_states)\n\n"
+    "    terminated, truncated, executed, step_rewards, inner_states, states, final_states,\n"
+    "    returns, lengths, episode_returns, episode_lengths) -> int\n\n"
     "Step every game once: its primitive action or routine, stopping at the end of an episode\n"
     "(terminated, or truncated at `limit` steps, -1 for none), resetting a game whose episode\n"
-    "ended. Arrays (C-contiguous, E games, A actions, L the longest sequence, F the game's\n"
+    "ended; returns how many episodes ended. `returns` and `lengths` are each game's episode so\n"
+    "far, grown by this step; a game whose episode ended writes them to `episode_returns` and\n"
+    "`episode_lengths` (0 for the others) and starts again from 0, as `elapsed`. Every action is\n"
+    "checked before any game moves. Arrays (C-contiguous, E games, A actions, L the longest sequence, F the game's\n"
     "fields, M its maps, C its channels): core int32 (E, F), maps uint8 (E, M, 10, 10), rngs\n"
     "uint64 (E,) bitgen_t addresses, actions int64 (E,), sequences int64 (A, L),\n"
     "sequence_lengths int64 (A,), elapsed int64 (E,), rewards float64 (E,), terminated and\n"
     "truncated bool (E,), executed int64 (E,), step_rewards float64 (E, L) or None,\n"
     "inner_states float32 (E, L, C, 10, 10) or None, states and final_states float32\n"
-    "(E, C, 10, 10). Breakout: F 8, M 1 (bricks), C 4; Space Invaders: F 10, M 3 (aliens,\n"
+    "(E, C, 10, 10), returns and episode_returns float64 (E,), lengths and episode_lengths\n"
+    "int64 (E,). Breakout: F 8, M 1 (bricks), C 4; Space Invaders: F 10, M 3 (aliens,\n"
     "friendly bullets, enemy bullets), C 6; Freeway: F 37 (4 variables, 8 cars of 4), M 0, C 7;\n"
     "Asterix: F 51 (10 variables, 8 entity slots of 5), M 0, C 4; Seaquest: F 1173 (15\n"
     "variables, 5 lists of up to 48 objects), M 0, C 10.";
@@ -1072,13 +1077,15 @@ PyObject* step_games(PyObject* args) {
   constexpr int kFrame = Game::kChannels * kCells;  // floats per observation
   PyObject *core_o, *maps_o, *rngs_o, *actions_o, *sequences_o, *lengths_o, *elapsed_o;
   PyObject *rewards_o, *terminated_o, *truncated_o, *executed_o, *step_rewards_o, *inner_o;
-  PyObject *states_o, *final_o;
+  PyObject *states_o, *final_o, *returns_o, *episode_lengths_o, *episode_returns_o;
+  PyObject* sofar_o;
   double sticky;
   long long limit;
-  if (!PyArg_ParseTuple(args, "OOOdOOOOLOOOOOOOO", &core_o, &maps_o, &rngs_o, &sticky,
+  if (!PyArg_ParseTuple(args, "OOOdOOOOLOOOOOOOOOOOO", &core_o, &maps_o, &rngs_o, &sticky,
                         &actions_o, &sequences_o, &lengths_o, &elapsed_o, &limit, &rewards_o,
                         &terminated_o, &truncated_o, &executed_o, &step_rewards_o, &inner_o,
-                        &states_o, &final_o)) {
+                        &states_o, &final_o, &returns_o, &sofar_o, &episode_returns_o,
+                        &episode_lengths_o)) {
     return nullptr;
   }
   Buffers b;
@@ -1126,6 +1133,16 @@ PyObject* step_games(PyObject* args) {
   auto* final_states = static_cast<float*>(b.get(final_o, e * kFrame * 4, true,
                                                   "final_states"));
   if (!final_states) return nullptr;
+  auto* returns = static_cast<double*>(b.get(returns_o, e * 8, true, "returns"));
+  if (!returns) return nullptr;
+  auto* sofar = static_cast<int64_t*>(b.get(sofar_o, e * 8, true, "lengths"));
+  if (!sofar) return nullptr;
+  auto* episode_returns = static_cast<double*>(b.get(episode_returns_o, e * 8, true,
+                                                     "episode_returns"));
+  if (!episode_returns) return nullptr;
+  auto* episode_lengths = static_cast<int64_t*>(b.get(episode_lengths_o, e * 8, true,
+                                                      "episode_lengths"));
+  if (!episode_lengths) return nullptr;
   for (Py_ssize_t i = 0; i < e; ++i) {
     if (actions[i] < 0 || actions[i] >= num_actions) {
       PyErr_Format(PyExc_ValueError, "action %lld is outside [0, %zd)",
@@ -1153,6 +1170,7 @@ PyObject* step_games(PyObject* args) {
     }
   }
 
+  Py_ssize_t ended = 0;
   for (Py_ssize_t i = 0; i < e; ++i) {
     int32_t* g = core + i * kFields;
     uint8_t* board = maps + i * kMapCells;
@@ -1184,14 +1202,23 @@ PyObject* step_games(PyObject* args) {
     terminated[i] = term;
     truncated[i] = trunc;
     executed[i] = k;
+    returns[i] += total;  // RecordEpisodeStatistics' sums
+    sofar[i] += k;
+    episode_returns[i] = 0.0;
+    episode_lengths[i] = 0;
     if (term || trunc) {
       Game::write_state(g, board, final_states + i * kFrame);
       Game::reset(g, board, rng);
       elapsed[i] = 0;
+      episode_returns[i] = returns[i];
+      episode_lengths[i] = sofar[i];
+      returns[i] = 0.0;
+      sofar[i] = 0;
+      ++ended;
     }
     Game::write_state(g, board, states + i * kFrame);
   }
-  Py_RETURN_NONE;
+  return PyLong_FromSsize_t(ended);
 }
 
 PyObject* breakout_step(PyObject*, PyObject* args) { return step_games<Breakout>(args); }

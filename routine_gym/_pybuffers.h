@@ -9,7 +9,7 @@ namespace {  // internal linkage: each module has its own copy
 
 // Holds the Py_buffers of one call and releases them on every way out.
 struct Buffers {
-  static constexpr int kMax = 16;
+  static constexpr int kMax = 24;
   Py_buffer views[kMax];
   int count = 0;
   ~Buffers() {

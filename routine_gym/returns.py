@@ -114,13 +114,17 @@ def decision_returns(
         `[N, E]` returns `G_i`; the advantage is `G_i − V(s_{t_i})`.
     """
     rewards = np.asarray(rewards, dtype=np.float64)
-    returns = np.zeros_like(rewards)
-    next_return = np.asarray(bootstrap_value, dtype=np.float64)
+    returns = np.empty_like(rewards)
+    # What follows a decision whose episode ended: nothing (terminated), or the value of the
+    # observation it was cut at (truncated).
+    ended = np.logical_or(terminated, truncated)
+    stops = np.where(terminated, 0.0, final_values)
+    following = np.array(bootstrap_value, dtype=np.float64)  # G_{i+1}, updated in place
     for i in reversed(range(rewards.shape[0])):
-        following = np.where(truncated[i], final_values[i], next_return)
-        following = np.where(terminated[i], 0.0, following)
-        next_return = rewards[i] + discounts[i] * following
-        returns[i] = next_return
+        np.copyto(following, stops[i], where=ended[i])
+        np.multiply(discounts[i], following, out=following)
+        np.add(rewards[i], following, out=following)
+        returns[i] = following
     return returns
 
 

@@ -39,6 +39,29 @@ def test_the_compiled_framing_is_tensorboards(data):
     assert _records.frame(data) == scalars._python_frame(data)  # the fallback's framing
 
 
+_DOUBLES = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.sampled_from(
+    [0.0, -0.0, 3.4028234663852886e38, 3.4028235e38, 3.4028236e38, -1e300, 1e-50, 2.0 ** -149]))
+
+
+@settings(max_examples=400, deadline=None)
+@given(_DOUBLES, st.integers(-2**63, 2**63 - 1),
+       st.lists(st.tuples(st.text(max_size=200), _DOUBLES), max_size=20))
+def test_the_compiled_scalar_event_is_protobufs(wall_time, step, values):
+    # Byte for byte what protobuf serializes for the same Event: zero fields, negative steps,
+    # empty and non-ASCII tags, values that round to inf, 0 or a float32 subnormal, NaNs.
+    assert _records.scalar_event(wall_time, step, values) \
+        == scalars._python_scalar_event(wall_time, step, values)
+
+
+@pytest.mark.parametrize("event", [_records.scalar_event, scalars._python_scalar_event])
+def test_a_scalar_event_refuses_what_protobuf_refuses(event):
+    for values, step in [([("a", 1.0, 2.0)], 1), ([("a", "1")], 1), ([("a", 1.0)], 2**63),
+                         ([("\ud800", 1.0)], 1), ([(b"\xff", 1.0)], 1), ([(1, 1.0)], 1)]:
+        with pytest.raises((TypeError, ValueError, OverflowError)):
+            event(1.0, step, values)
+    assert event(1.0, 1, [(b"a", 1.0)]) == event(1.0, 1, [("a", 1.0)])  # UTF-8 bytes: a tag
+
+
 def _scalars(folder: Path) -> dict[str, list[tuple[int, float]]]:
     files = sorted(folder.glob("events.out.tfevents.*"))
     out: dict[str, list[tuple[int, float]]] = {}

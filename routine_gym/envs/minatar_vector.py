@@ -214,6 +214,9 @@ class MinAtarVectorEnv(VectorEnv):
             self._returns: Any = np.zeros(num_envs, dtype=np.float64)
             self._lengths: Any = np.zeros(num_envs, dtype=np.int64)
             self._executed_scratch = np.zeros(num_envs, dtype=np.int64)
+            self._episode_returns = np.zeros(num_envs, dtype=np.float64)
+            self._episode_lengths = np.zeros(num_envs, dtype=np.int64)
+            self._batch_shape = (num_envs, c, h, w)
             self._final_scratch = np.zeros((num_envs, c, h, w), dtype=np.float32)
             self._load_core()  # the games as MinAtar built them, as the Python loop finds them
         else:
@@ -287,20 +290,26 @@ class MinAtarVectorEnv(VectorEnv):
         self._start_times[i] = time.perf_counter()
 
     def step(self, actions: np.ndarray):
+        if self.compiled:
+            return self._step_compiled(actions)
+        actions = self._checked(actions)
+        # Python ints: a numpy element costs more than the game
+        return self._finish(actions, *self._run_python(actions.tolist(), actions))
+
+    def _checked(self, actions: Any) -> np.ndarray:
+        """`actions` as an array of `num_envs` actions of the action space, or a one-line error."""
         e = self.num_envs
         actions = np.asarray(actions)
         if actions.shape != (e,):
             raise ValueError(f"step needs {e} actions, got an array of shape {actions.shape}")
         if actions.dtype.kind not in "iu":
             raise ValueError(f"actions must be integers, got an array of {actions.dtype}")
-        chosen = actions.tolist()  # Python ints: a numpy element costs more than the game
+        chosen = actions.tolist()
         if min(chosen) < 0 or max(chosen) >= len(self._sequences):
             outside = next(a for a in chosen if not 0 <= a < len(self._sequences))
             raise ValueError(f"action {outside} is outside the action space "
                              f"{self.single_action_space}")
-        if self.compiled:
-            return self._finish(actions, *self._run_compiled(actions))
-        return self._finish(actions, *self._run_python(chosen, actions))
+        return actions
 
     def _run_python(self, chosen: list[int], actions: np.ndarray):
         """Step the games one after the other in Python; what `_finish` takes."""
@@ -377,35 +386,48 @@ class MinAtarVectorEnv(VectorEnv):
                        "routine_truncated": step_truncated}
             if record:
                 routine["routine_observations"] = self._view(inner_states)
-        finals = None
+        ended = None
         if episodes:
-            finals = self._view(final_states[terminated | truncated])
-        return self._view(states), rewards, terminated, truncated, routine, finals, episodes
+            rows = [i for i, *_ in episodes]
+            r, l, t = np.zeros(e), np.zeros(e, dtype=np.int64), np.zeros(e)
+            r[rows], l[rows], t[rows] = zip(*(episode[1:] for episode in episodes), strict=True)
+            ended = (rows, self._view(final_states[terminated | truncated]), r, l, t)
+        return self._view(states), rewards, terminated, truncated, routine, ended
 
-    def _run_compiled(self, actions: np.ndarray):
-        """Step all games in one call of the compiled core; what `_finish` takes."""
-        e, length = self.num_envs, self.max_routine_length
-        routines, record = self.has_routines, self.record_observations
-        view = self.single_observation_space.shape
+    def _step_compiled(self, actions: Any):
+        """`step` in the compiled core: the games, their episodes' sums and resets in one call,
+        and no more Python around it than the step's `info` needs (a step with no routines
+        and no episode end returns an empty `info` after four allocations and the call)."""
+        e = self.num_envs
+        if type(actions) is not np.ndarray or actions.dtype != np.int64 \
+                or actions.shape != (e,) or not actions.flags.c_contiguous:
+            actions = np.ascontiguousarray(self._checked(actions), dtype=np.int64)
+        routines = self.has_routines
         rewards = np.empty(e, dtype=np.float64)
         terminated, truncated = np.empty(e, dtype=bool), np.empty(e, dtype=bool)
-        # Returned as `routine_length` with routines (a new array), else only counted.
-        executed = np.empty(e, dtype=np.int64) if routines else self._executed_scratch
-        step_rewards = np.zeros((e, length), dtype=np.float64) if routines else None
-        inner = np.zeros((e, length, *view), dtype=np.float32) if record else None
-        states = np.empty((e, *view), dtype=np.float32)
-        final_states = self._final_scratch  # the ended games' rows are copied out below
-        self._core_step(
-            self._core, self._maps, self._rngs, self._sticky,
-            np.ascontiguousarray(actions, dtype=np.int64), self._core_sequences,
-            self._core_lengths, self._elapsed, self._limit, rewards, terminated, truncated,
-            executed, step_rewards, inner, states, final_states)
-        self._returns += rewards
-        self._lengths += executed
-        done = terminated | truncated
-        routine, finals, episodes = None, None, []
+        states = np.empty(self._batch_shape, dtype=np.float32)
+        if routines:  # returned as `routine_length` (a new array); else only counted
+            executed = np.empty(e, dtype=np.int64)
+            step_rewards = np.zeros((e, self.max_routine_length), dtype=np.float64)
+            inner = np.zeros((e, self.max_routine_length, *self._batch_shape[1:]),
+                             dtype=np.float32) if self.record_observations else None
+        else:
+            executed, step_rewards, inner = self._executed_scratch, None, None
+        try:
+            ended = self._core_step(
+                self._core, self._maps, self._rngs, self._sticky, actions,
+                self._core_sequences, self._core_lengths, self._elapsed, self._limit, rewards,
+                terminated, truncated, executed, step_rewards, inner, states,
+                self._final_scratch, self._returns, self._lengths, self._episode_returns,
+                self._episode_lengths)
+        except ValueError:
+            self._checked(actions)  # an action outside the space: the Python path's message
+            raise
+        if not (ended or routines):
+            return states, rewards, terminated, truncated, {}
+        routine, episodes = None, None
         if routines:
-            rows = np.arange(e)
+            rows, length = np.arange(e), self.max_routine_length
             step_terminated = np.zeros((e, length), dtype=bool)
             step_truncated = np.zeros((e, length), dtype=bool)
             step_terminated[rows, executed - 1] = terminated
@@ -415,22 +437,26 @@ class MinAtarVectorEnv(VectorEnv):
             routine = {"routine_length": executed, "routine_actions": step_actions,
                        "routine_rewards": step_rewards, "routine_terminated": step_terminated,
                        "routine_truncated": step_truncated}
-            if record:
+            if inner is not None:
                 routine["routine_observations"] = inner
-        if done.any():
-            ended = np.flatnonzero(done)
-            now = time.perf_counter()
-            for i in ended.tolist():
-                episodes.append((i, float(self._returns[i]), int(self._lengths[i]),
-                                 round(now - self._start_times[i], 6)))
-                self._start_episode(i)
-            finals = final_states[ended]
-        return states, rewards, terminated, truncated, routine, finals, episodes
+        if ended:
+            # The core has ended the episodes (their returns and lengths) and started the next;
+            # their clocks start here.
+            rows = np.flatnonzero(terminated | truncated).tolist()
+            seconds, now, starts = np.zeros(e), time.perf_counter(), self._start_times
+            for i in rows:
+                seconds[i], starts[i] = round(now - starts[i], 6), now
+            episodes = (rows, self._final_scratch[rows], self._episode_returns.copy(),
+                        self._episode_lengths.copy(), seconds)
+        return self._finish(actions, states, rewards, terminated, truncated, routine, episodes)
 
     def _finish(self, actions: np.ndarray, states: np.ndarray, rewards: np.ndarray,
                 terminated: np.ndarray, truncated: np.ndarray, routine: dict | None,
-                finals: np.ndarray | None, episodes: list[tuple[int, float, int, float]]):
-        """The step's return: `info` arranged as `SyncVectorEnv` with same-step autoreset does."""
+                episodes: tuple[list[int], np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None):
+        """The step's return: `info` arranged as `SyncVectorEnv` with same-step autoreset does.
+
+        `episodes`: None, or the ended envs' rows (in order), their final observations, and the
+        `RecordEpisodeStatistics` arrays `r`, `l`, `t` of all envs (0 where none ended)."""
         e = self.num_envs
         done = terminated | truncated
         info: dict[str, Any] = {}
@@ -442,20 +468,17 @@ class MinAtarVectorEnv(VectorEnv):
             # their reset's, which has no routine keys), as SyncVectorEnv arranges it.
             if not done.all():
                 info.update(masked_rows(routine, ~done))
-        if episodes:
+        if episodes is not None:
+            rows, finals, r, l, t = episodes
             final_info: dict[str, Any] = {}
             if routine is not None:
                 final_info.update(masked_rows(routine, done))
             # The envs with an episode end are the done ones, in order.
-            episode = {"r": np.zeros(e, dtype=np.float64), "l": np.zeros(e, dtype=np.int64),
-                       "t": np.zeros(e, dtype=np.float64)}
-            for i, ret, steps, seconds in episodes:
-                episode["r"][i], episode["l"][i], episode["t"][i] = ret, steps, seconds
-            for key in ("r", "l", "t"):
-                episode[f"_{key}"] = done.copy()
+            episode = {"r": r, "l": l, "t": t, "_r": done.copy(), "_l": done.copy(),
+                       "_t": done.copy()}
             final_info["episode"], final_info["_episode"] = episode, done.copy()
-            final_obs = np.full(e, None, dtype=object)
-            for i, view in zip(np.flatnonzero(done), finals, strict=True):
+            final_obs = np.empty(e, dtype=object)  # None but where an episode ended
+            for i, view in zip(rows, finals, strict=True):
                 final_obs[i] = view
             info["final_obs"], info["_final_obs"] = final_obs, done.copy()
             info["final_info"], info["_final_info"] = final_info, done.copy()

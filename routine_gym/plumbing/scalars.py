@@ -66,10 +66,18 @@ def _python_frame(data: bytes) -> bytes:
             + struct.pack("<I", masked_crc32c(data)))
 
 
+def _python_scalar_event(wall_time: float, step: int, values: list[tuple[str, float]]) -> bytes:
+    """The record of one `Event` of scalars at `step`, built with protobuf's classes."""
+    summary = Summary(value=[Summary.Value(tag=tag, simple_value=value) for tag, value in values])
+    event = event_pb2.Event(summary=summary, wall_time=wall_time, step=step)
+    return _frame(event.SerializeToString())
+
+
 try:
     from routine_gym._records import frame as _frame
+    from routine_gym._records import scalar_event as _scalar_event
 except ImportError:  # not built (a source checkout without `pip install`)
-    _frame = _python_frame
+    _frame, _scalar_event = _python_frame, _python_scalar_event
 
 __all__ = ["EventFile", "ScalarWriter"]
 
@@ -127,7 +135,10 @@ class EventFile:
         return self._logdir
 
     def add_event(self, event: event_pb2.Event) -> None:
-        record = _frame(event.SerializeToString())
+        self.add_record(_frame(event.SerializeToString()))
+
+    def add_record(self, record: bytes) -> None:
+        """Write a record already framed (`frame`, `scalar_event`)."""
         with self._lock:
             if self._file is None:
                 raise OSError(f"the event file {self._file_name} is closed")
@@ -181,7 +192,7 @@ class ScalarWriter(SummaryWriter):
         super().__init__(*args, **kwargs)
         self.mirror = mirror
         self._step: int | None = None
-        self._values: list[Summary.Value] = []
+        self._values: list[tuple[str, float]] = []
         # A run that ends on an exception does not close its writer: the last step's scalars
         # still go to the file at exit (before the file itself is closed, made earlier).
         weakref.finalize(self, _write_pending_at_exit, weakref.ref(self))
@@ -216,14 +227,17 @@ class ScalarWriter(SummaryWriter):
             self._write_pending()
             self._step = global_step
         # `SummaryWriter.add_scalar` stores float(value) as the proto's float32 simple_value.
-        self._values.append(Summary.Value(tag=tag, simple_value=float(scalar_value)))
+        self._values.append((tag, float(scalar_value)))
 
     def _write_pending(self) -> None:
         if self._values:
-            self._get_file_writer().add_summary(Summary(value=self._values), self._step,
-                                                time.time())
-            if self.mirror is not None:
-                self.mirror(self._step, [(v.tag, v.simple_value) for v in self._values])
+            # The event `add_summary` writes (`SummaryWriter.add_scalar`'s summaries in one),
+            # serialized in C++ (`scalar_event`) instead of through protobuf's classes.
+            self._get_file_writer().event_writer.add_record(
+                _scalar_event(time.time(), int(self._step), self._values))
+            if self.mirror is not None:  # the values as the event stores them: float32
+                self.mirror(self._step, [(tag, float(np.float32(value)))
+                                         for tag, value in self._values])
             self._values = []
 
     def flush(self) -> None:
