@@ -78,6 +78,7 @@ import json
 import os
 import re
 import shlex
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -758,7 +759,8 @@ def render(results: list[Result], info: dict[str, str], command: str, demo_note:
             label += " (the script's default)"
         bound = bound_for(results, ours)
         if minatar:
-            lines.extend(_minatar_summary(label, config, ours, bound, sb3_default, sb3_t1))
+            lines.extend(_minatar_summary(label, config, ours, bound, sb3_default, sb3_t1,
+                                          _paired_ratios(results, name)))
             continue
         if sb3_default is None:
             lines.append(f"- {label}: {ours.sps:,.0f} SPS; SB3 not measured")
@@ -821,8 +823,25 @@ def render(results: list[Result], info: dict[str, str], command: str, demo_note:
     return "\n".join(lines) + "\n"
 
 
+def _paired_ratios(results: list[Result], name: str) -> list[float]:
+    """Each repeat of configuration `name` ÷ the network-only bound (same threads) of the same
+    repeat, measured minutes apart: on a machine whose speed drifts, a steadier figure than one
+    configuration's best against another's (which can come from different minutes)."""
+    threads = CONFIGS[name].threads
+    ratios = []
+    for ours in results:
+        if ours.config != name or ours.error or not ours.sps:
+            continue
+        bound = next((r for r in results if r.config == f"net-t{threads}"
+                      and r.repeat == ours.repeat and not r.error and r.sps), None)
+        if bound is not None:
+            ratios.append(ours.sps / bound.sps)
+    return ratios
+
+
 def _minatar_summary(label: str, config: Config, ours: Result, bound: Result | None,
-                     sb3_default: Result | None, sb3_t1: Result | None) -> list[str]:
+                     sb3_default: Result | None, sb3_t1: Result | None,
+                     paired: list[float]) -> list[str]:
     """One of our configurations on MinAtar: ÷ the bound, the acceptance (a2c), ÷ SB3."""
     if bound is None:
         head = f"- {label}: {ours.sps:,.0f} SPS; network-only bound not measured"
@@ -838,6 +857,10 @@ def _minatar_summary(label: str, config: Config, ours: Result, bound: Result | N
                  f"{'yes' if fast else 'no'}; ≥ {MINATAR_BOUND_RATIO}× the bound: "
                  f"{'not measured' if near is None else 'yes' if near else 'no'})")
     lines = [head + "."]
+    if paired:
+        lines.append("  Per repeat, ÷ the bound of the same repeat: "
+                     + ", ".join(f"{r:.2f}×" for r in paired)
+                     + f" (median {statistics.median(paired):.2f}×).")
     against = [f"{ours.sps / sb3.sps:.2f}× SB3 with {what} ({sb3.sps:,.0f})"
                for sb3, what in ((sb3_default, "torch's default threads"),
                                  (sb3_t1, "1 thread")) if sb3 is not None]

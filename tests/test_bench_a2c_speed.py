@@ -35,3 +35,8 @@ def test_a_short_minatar_run_reports_the_script_against_the_bound(tmp_path):
     assert ours["cpu_seconds"] > 0 and ours["returncode"] == 0
     assert re.search(r"a2c, --torch-threads 1: [\d,]+ SPS = [\d.]+× the network-only bound",
                      report)
+    # The one repeat against the bound of its own repeat: the same figure here.
+    paired = re.search(r"Per repeat, ÷ the bound of the same repeat: ([\d.]+)× \(median "
+                       r"([\d.]+)×\)", report)
+    net = next(r for r in raw["results"] if r["config"] == "net-t1")
+    assert paired and float(paired[1]) == float(paired[2]) == round(ours["sps"] / net["sps"], 2)

@@ -5,7 +5,11 @@ A training script logs a dozen scalars after every update, all at the same `glob
 scalar: a protobuf `Summary`, an `Event`, a queue put and a record write each, about 40 µs. On
 MinAtar, where an update is 80 agent steps of a small network, that was a tenth of the time. This
 writer keeps the scalars of the current step and writes them as one event (one `Summary` with
-several values) when the step changes, on `flush()` and on `close()`: about 4 µs per scalar.
+several values) when the step changes, on `flush()` and on `close()`. A scalar is kept as a
+`(tag, float)` pair; the event is serialized and framed in C++ (`routine_gym/_records.cpp`'s
+`scalar_event`: the bytes protobuf writes for it, checked against protobuf in the tests;
+protobuf's classes where it is not built). Between two network passes, where the caches are
+cold, protobuf's objects cost ~23 µs an event; the compiled event ~3 µs, ~0.2 µs a scalar.
 TensorBoard (and `EventAccumulator`, `tbparse`, ...) reads back the same tags, steps and float32
 values; only the events' wall times are shared by the scalars of one step.
 
