@@ -1057,18 +1057,18 @@ const char kStepArgs[] =
     "(terminated, or truncated at `limit` steps, -1 for none), resetting a game whose episode\n"
     "ended; returns how many episodes ended. `returns` and `lengths` are each game's episode so\n"
     "far, grown by this step; a game whose episode ended writes them to `episode_returns` and\n"
-    "`episode_lengths` (0 for the others) and starts again from 0, as `elapsed`. Every action is\n"
-    "checked before any game moves. Arrays (C-contiguous, E games, A actions, L the longest sequence, F the game's\n"
-    "fields, M its maps, C its channels): core int32 (E, F), maps uint8 (E, M, 10, 10), rngs\n"
-    "uint64 (E,) bitgen_t addresses, actions int64 (E,), sequences int64 (A, L),\n"
-    "sequence_lengths int64 (A,), elapsed int64 (E,), rewards float64 (E,), terminated and\n"
-    "truncated bool (E,), executed int64 (E,), step_rewards float64 (E, L) or None,\n"
-    "inner_states float32 (E, L, C, 10, 10) or None, states and final_states float32\n"
-    "(E, C, 10, 10), returns and episode_returns float64 (E,), lengths and episode_lengths\n"
-    "int64 (E,). Breakout: F 8, M 1 (bricks), C 4; Space Invaders: F 10, M 3 (aliens,\n"
-    "friendly bullets, enemy bullets), C 6; Freeway: F 37 (4 variables, 8 cars of 4), M 0, C 7;\n"
-    "Asterix: F 51 (10 variables, 8 entity slots of 5), M 0, C 4; Seaquest: F 1173 (15\n"
-    "variables, 5 lists of up to 48 objects), M 0, C 10.";
+    "`episode_lengths` (0 for the others) and starts again from 0, as `elapsed`. Every action\n"
+    "is checked before any game moves. Arrays (C-contiguous, E games, A actions, L the longest\n"
+    "sequence, F the game's fields, M its maps, C its channels): core int32 (E, F), maps uint8\n"
+    "(E, M, 10, 10), rngs uint64 (E,) bitgen_t addresses, actions int64 (E,), sequences int64\n"
+    "(A, L), sequence_lengths int64 (A,), elapsed int64 (E,), rewards float64 (E,), terminated\n"
+    "and truncated bool (E,), executed int64 (E,), step_rewards float64 (E, L) or None,\n"
+    "inner_states float32 (E, L, C, 10, 10) or None, states and final_states float32 (E, C, 10,\n"
+    "10), returns and episode_returns float64 (E,), lengths and episode_lengths int64 (E,).\n"
+    "Breakout: F 8, M 1 (bricks), C 4; Space Invaders: F 10, M 3 (aliens, friendly bullets,\n"
+    "enemy bullets), C 6; Freeway: F 37 (4 variables, 8 cars of 4), M 0, C 7; Asterix: F 51 (10\n"
+    "variables, 8 entity slots of 5), M 0, C 4; Seaquest: F 1173 (15 variables, 5 lists of up\n"
+    "to 48 objects), M 0, C 10.";
 
 template <typename Game>
 PyObject* step_games(PyObject* args) {

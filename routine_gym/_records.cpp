@@ -12,7 +12,8 @@
 // bytes protobuf writes for it (fields in number order; proto3's wall_time and step left out
 // when zero, as bits; a `Value`'s empty tag left out, its simple_value, a oneof member, always
 // in; the value rounded to float32 as protobuf rounds it). Building the protobuf objects in
-// Python cost ~20 µs an event between two network passes, here ~1 µs.
+// Python cost ~23 µs an event between two network passes of a MinAtar run; the compiled event,
+// written, ~3 µs.
 //
 // tests/test_scalars.py checks `masked_crc32c` and `frame` against TensorBoard's own Python
 // functions on random data, `scalar_event` against protobuf's serialization of the same event,

@@ -62,6 +62,21 @@ def test_a_scalar_event_refuses_what_protobuf_refuses(event):
     assert event(1.0, 1, [(b"a", 1.0)]) == event(1.0, 1, [("a", 1.0)])  # UTF-8 bytes: a tag
 
 
+def test_an_odd_tag_is_taken_or_refused_at_the_call_and_the_writer_goes_on(tmp_path):
+    # Tags other than ASCII text go through SummaryWriter's own path: protobuf refuses a bad one
+    # at add_scalar, not at a later write that would then fail for every step after it.
+    writer = ScalarWriter(str(tmp_path))
+    writer.add_scalar("losses/a", 1.0, 1)
+    with pytest.raises((TypeError, ValueError)):
+        writer.add_scalar(7, 2.0, 1)
+    with pytest.raises((TypeError, ValueError, UnicodeError)):
+        writer.add_scalar("bad\ud800", 2.0, 1)
+    writer.add_scalar("écart/ünicode", 3.0, 2)
+    writer.add_scalar("losses/a", 4.0, 3)
+    writer.close()
+    assert _scalars(tmp_path) == {"losses/a": [(1, 1.0), (3, 4.0)], "écart/ünicode": [(2, 3.0)]}
+
+
 def _scalars(folder: Path) -> dict[str, list[tuple[int, float]]]:
     files = sorted(folder.glob("events.out.tfevents.*"))
     out: dict[str, list[tuple[int, float]]] = {}

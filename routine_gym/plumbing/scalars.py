@@ -218,7 +218,10 @@ class ScalarWriter(SummaryWriter):
     def add_scalar(self, tag: str, scalar_value: Any, global_step: int | None = None,
                    walltime: float | None = None, new_style: bool = False,
                    double_precision: bool = False) -> None:
-        if global_step is None or walltime is not None or new_style or double_precision:
+        # An ASCII str tag is kept as it is; any other (bytes, non-ASCII text, not text) takes
+        # SummaryWriter's own path, so protobuf accepts or refuses it here, at the call.
+        if global_step is None or walltime is not None or new_style or double_precision \
+                or type(tag) is not str or not tag.isascii():
             self._write_pending()
             super().add_scalar(tag, scalar_value, global_step, walltime, new_style,
                                double_precision)
