@@ -51,6 +51,9 @@ except ImportError:  # not built (a source checkout without `pip install`): the 
 
 __all__ = ["MinAtarVectorEnv"]
 
+#: The episodes a step ended: their rows (in order), final observations, and `r`, `l`, `t`.
+_Episodes = tuple[list[int], np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
 #: Per game with a compiled core (by MinAtar's name): the game's variables in the order of a
 #: row of the core's int32 array (`_minatar_core.cpp`'s `Field`, the last action after them;
 #: Freeway's `cars`, 8 lists of 4, as 32 entries; Asterix's `entities`, 8 slots, as 40;
@@ -378,6 +381,7 @@ class MinAtarVectorEnv(VectorEnv):
         rewards = np.array(rewards, dtype=np.float64)
         terminated = np.array(terminated, dtype=bool)
         truncated = np.array(truncated, dtype=bool)
+        done = terminated | truncated
         routine = None
         if routines:
             routine = {"routine_length": np.array(step_lengths, dtype=np.int64),
@@ -388,11 +392,11 @@ class MinAtarVectorEnv(VectorEnv):
                 routine["routine_observations"] = self._view(inner_states)
         ended = None
         if episodes:
-            rows = [i for i, *_ in episodes]
             r, l, t = np.zeros(e), np.zeros(e, dtype=np.int64), np.zeros(e)
-            r[rows], l[rows], t[rows] = zip(*(episode[1:] for episode in episodes), strict=True)
-            ended = (rows, self._view(final_states[terminated | truncated]), r, l, t)
-        return self._view(states), rewards, terminated, truncated, routine, ended
+            for i, ret, steps, seconds in episodes:
+                r[i], l[i], t[i] = ret, steps, seconds
+            ended = ([i for i, *_ in episodes], self._view(final_states[done]), r, l, t)
+        return self._view(states), rewards, terminated, truncated, done, routine, ended
 
     def _step_compiled(self, actions: Any):
         """`step` in the compiled core: the games, their episodes' sums and resets in one call,
@@ -425,6 +429,7 @@ class MinAtarVectorEnv(VectorEnv):
             raise
         if not (ended or routines):
             return states, rewards, terminated, truncated, {}
+        done = terminated | truncated
         routine, episodes = None, None
         if routines:
             rows, length = np.arange(e), self.max_routine_length
@@ -442,23 +447,24 @@ class MinAtarVectorEnv(VectorEnv):
         if ended:
             # The core has ended the episodes (their returns and lengths) and started the next;
             # their clocks start here.
-            rows = np.flatnonzero(terminated | truncated).tolist()
+            rows = np.flatnonzero(done).tolist()
             seconds, now, starts = np.zeros(e), time.perf_counter(), self._start_times
             for i in rows:
                 seconds[i], starts[i] = round(now - starts[i], 6), now
             episodes = (rows, self._final_scratch[rows], self._episode_returns.copy(),
                         self._episode_lengths.copy(), seconds)
-        return self._finish(actions, states, rewards, terminated, truncated, routine, episodes)
+        return self._finish(actions, states, rewards, terminated, truncated, done, routine,
+                            episodes)
 
     def _finish(self, actions: np.ndarray, states: np.ndarray, rewards: np.ndarray,
-                terminated: np.ndarray, truncated: np.ndarray, routine: dict | None,
-                episodes: tuple[list[int], np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None):
+                terminated: np.ndarray, truncated: np.ndarray, done: np.ndarray,
+                routine: dict | None, episodes: _Episodes | None):
         """The step's return: `info` arranged as `SyncVectorEnv` with same-step autoreset does.
 
-        `episodes`: None, or the ended envs' rows (in order), their final observations, and the
-        `RecordEpisodeStatistics` arrays `r`, `l`, `t` of all envs (0 where none ended)."""
+        `done`: `terminated | truncated`. `episodes`: None, or the ended envs' rows (in order),
+        their final observations, and the `RecordEpisodeStatistics` arrays `r`, `l`, `t` of all
+        envs (0 where none ended)."""
         e = self.num_envs
-        done = terminated | truncated
         info: dict[str, Any] = {}
         if routine is not None:
             routine = {"routine_index": np.where(actions >= self.num_primitive_actions,
