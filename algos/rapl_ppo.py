@@ -71,6 +71,7 @@ from routine_gym.plumbing.run import (
     start_run,
     train_env_kwargs,
 )
+from routine_gym.plumbing.seeds import train_seed
 from routine_gym.ppo import (
     clipped_policy_loss,
     clipped_value_loss,
@@ -94,6 +95,10 @@ class Args:
     """the name of this experiment"""
     seed: int = 1
     """seed of the experiment"""
+    seed_stride: int = 1
+    """env seeds: 1 resets training env i with seed + i (experiment seeds then share env seeds);
+    S ≥ 4 gives each seed its own block [seed·S, (seed+1)·S) of env seeds
+    (`routine_gym.plumbing.seeds`)"""
     torch_deterministic: bool = True
     """if toggled, `torch.backends.cudnn.deterministic=True`"""
     cuda: bool = False
@@ -413,7 +418,7 @@ def main(args: Args) -> None:
 
     # The env is reset with a seed that depends on where the run is, so a resumed run does not
     # replay the episodes it already saw.
-    next_obs, _ = envs.reset(seed=args.seed + global_step)
+    next_obs, _ = envs.reset(seed=train_seed(args.seed, args.seed_stride, global_step))
     start_time, start_step, start_decisions = time.time(), global_step, decisions
     logs = Every(args.log_every, start=budget_spent(args.budget_unit, global_step, decisions))
     routine_counts = np.zeros(num_actions, dtype=np.int64)

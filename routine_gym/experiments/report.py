@@ -52,6 +52,7 @@ from routine_gym.experiments.reference import (
 )
 from routine_gym.experiments.registry import EXPERIMENTS
 from routine_gym.experiments.results import RunRecord, load_runs
+from routine_gym.experiments.specs import BUDGETS
 from routine_gym.experiments.writing import Writer, num, table
 from routine_gym.plumbing.atomic import atomic_write_text
 from routine_gym.plumbing.errors import UsageError, one_line
@@ -73,7 +74,8 @@ def _status_lines(runs: list[RunRecord]) -> list[str]:
     return [line + ".", ""]
 
 
-def _normalisation_lines(references: Mapping[str, Reference]) -> list[str]:
+def _normalisation_lines(references: Mapping[str, Reference], demo_set: str = "first",
+                         episodes: int = REFERENCE_EPISODES) -> list[str]:
     rows = []
     for env_id, ref in sorted(references.items()):
         kind = {"human": "human-normalised (published table)",
@@ -84,11 +86,21 @@ def _normalisation_lines(references: Mapping[str, Reference]) -> list[str]:
             "Normalised score per game: `(score − random)/(reference − random)`. Atari games "
             "(a key in `routine_gym.metrics.HUMAN_RANDOM_SCORES`) are human-normalised "
             "(reference: the human score); other games are demo-normalised (reference: the "
-            "best episode of the shipped demo; random: the uniformly random policy's mean "
-            f"over {REFERENCE_EPISODES} episodes from seed {REFERENCE_SEED}); a game with "
+            f"best episode of the shipped demo{_set_note(demo_set)}; random: the uniformly "
+            f"random policy's mean over {episodes} episodes from seed {REFERENCE_SEED}); a game "
+            "with "
             "neither keeps its raw score and is left out of the aggregates. Cached in "
             "`reference_scores.json`.", "",
             *table(("env", "normalisation", "random", "reference", "note"), rows)]
+
+
+def _set_note(demo_set: str) -> str:
+    """Which demos a report's references are (nothing for the first protocol's, whose reports
+    said nothing of it)."""
+    if demo_set == "first":
+        return ""
+    return (f" of the `{demo_set}` demo set (`routine_gym.demo.DEMO_SETS`; MinAtar: the "
+            "10M-step experts' demos of `demos/README.md`)")
 
 
 def report_files() -> tuple[str, ...]:
@@ -170,7 +182,11 @@ def _write_report(out: Path, folder: Path, reps: int, seed: int,
     envs = {r.env_id for name, experiment in EXPERIMENTS.items()
             if experiment.normalised and manifests[name]
             for r in manifests[name].runs if r.role == "main" and r.finished}
-    references = reference_scores(envs, folder / "reference_scores.json")
+    budget_names = {m.budget for m in manifests.values() if m is not None}
+    sizes = BUDGETS.get(min(budget_names)) if len(budget_names) == 1 else None
+    demo_set = sizes.demo_set if sizes is not None else "first"
+    episodes = sizes.reference_episodes if sizes is not None else REFERENCE_EPISODES
+    references = reference_scores(envs, folder / "reference_scores.json", demo_set, episodes)
     w = Writer(folder, references, reps, seed)
     w.written.append(folder / "reference_scores.json")
 
@@ -204,7 +220,7 @@ def _write_report(out: Path, folder: Path, reps: int, seed: int,
         lines += experiment.section(w, main)
     if sides is not None:
         lines += budget_comparison.section(w, *sides, out)
-    lines += _normalisation_lines(references)
+    lines += _normalisation_lines(references, demo_set, episodes)
     atomic_write_text(folder / "report.md", "\n".join(lines).rstrip() + "\n")
     w.written.append(folder / "report.md")
     return w.written

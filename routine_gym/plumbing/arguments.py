@@ -74,6 +74,8 @@ DOMAINS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "torch_threads": _AT_LEAST_0,
     "num_levels": _AT_LEAST_0,
     "start_level": _AT_LEAST_0,
+    # Its other rules (the blocks of `plumbing.seeds`) depend on other flags: `stride_checks`.
+    "seed_stride": _AT_LEAST_1,
     # NumPy's global seed (`np.random.seed`) takes no other; Gymnasium refuses negative ones.
     "seed": (lambda v: 0 <= v < 2**32, "in [0, 2**32 - 1]"),
 }

@@ -42,6 +42,7 @@ from routine_gym.plumbing.checkpoint import CHECKPOINT_NAME, resume_settings, wr
 from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.memory import keep_freed_memory
 from routine_gym.plumbing.rng import rng_state, set_rng_state
+from routine_gym.plumbing.seeds import demo_seed, eval_seed, stride_checks
 
 __all__ = [
     "Every",
@@ -291,14 +292,16 @@ class Run:
             videos = os.path.join(self.path, "videos") \
                 if getattr(args, "capture_video", False) else None
             result = evaluate_policy(args.env_id, policy, args.eval_episodes,
-                                     seed=args.seed + 10_000, demo=demo, routines=routines,
+                                     seed=eval_seed(args.seed, getattr(args, "seed_stride", 1)),
+                                     demo=demo, routines=routines,
                                      env_kwargs=env_kwargs, max_steps=max_steps,
                                      video_folder=videos)
             result.update(method=method, global_step=step, **(summary or {}))
             save_evaluation(result, self.path, self.writer, step)
             for levels in getattr(args, "extra_evals", ()):
                 other = evaluate_policy(args.env_id, policy, args.eval_episodes,
-                                        seed=args.seed + 10_000, routines=routines,
+                                        seed=eval_seed(args.seed, getattr(args, "seed_stride", 1)),
+                                        routines=routines,
                                         env_kwargs=level_env_kwargs(args, levels),
                                         max_steps=max_steps)
                 other.update(method=method, global_step=step, **(summary or {}), levels=levels)
@@ -327,7 +330,8 @@ class Run:
         # The demo marks the agent's decisions (each step of a chosen routine included) apart
         # from the steps the preprocessing injects (no-op start, FIRE, served lives).
         demo = record_agent_demo(
-            args.env_id, policy, num_episodes=args.demo_episodes, seed=args.seed + 20_000,
+            args.env_id, policy, num_episodes=args.demo_episodes,
+            seed=demo_seed(args.seed, getattr(args, "seed_stride", 1)),
             env_kwargs={**default_env_kwargs(args.env_id), **train_env_kwargs(args)},
             wrap_env=wrap, routines=routines,
             meta={"trained_steps": step, "command": " ".join(sys.argv),
@@ -365,6 +369,11 @@ def seed_and_tune(seed: int, torch_threads: int) -> None:
     keep_freed_memory()  # a minibatch's blocks are reused, not page-faulted in again
 
 
+def _with_stride_checks(extra: ExtraChecks) -> Callable[[Any], list]:
+    """A script's own argument rules and `--seed-stride`'s (`plumbing.seeds.stride_checks`)."""
+    return lambda args: [*(extra(args) if callable(extra) else extra), *stride_checks(args)]
+
+
 def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
               budget: str = "total_timesteps", lower_budget: bool = False,
               extra_checks: ExtraChecks = (), preset: Callable[[Any], None] | None = None
@@ -390,6 +399,7 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
     """
     if preset is not None and not args.resume:
         preset(args)
+    extra_checks = _with_stride_checks(extra_checks)
     check_args(args, extra_checks)
     if getattr(args, "record_demo", None):
         check_writable(args.record_demo, "--record-demo")  # before training, not after
