@@ -33,7 +33,8 @@ COMMON = ["--seed", "3", "--torch-threads", "1", "--eval-episodes", "2",
 #: The env of a run whose flags name none.
 DEFAULT_ENV = ["--env-id", "MiniQbert-v0"]
 MINATAR = ["--env-id", "MinAtar/Breakout-v1", "--num-envs", "16", "--total-timesteps", "8000"]
-MINATAR_DEMO = str(REPO / "demos" / "MinAtar-Breakout-v1.npz")
+# The first protocol's demo: a change's snapshot mines the same routines before and after.
+MINATAR_DEMO = str(REPO / "demos" / "first" / "MinAtar-Breakout-v1.npz")
 #: (name, script, flags): every script and mode, a few hundred updates each.
 RUNS = [
     ("rapl_a2c-a2c", "rapl_a2c", ["--mode", "a2c", "--num-envs", "4", "--total-timesteps", "4000"]),

@@ -211,8 +211,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_show_demos(args: argparse.Namespace) -> int:
-    from routine_gym.demo import DEMO_SUITE, DEMOS_DIR, Demo, demo_filename
-    from routine_gym.mining import SequiturMiner
+    from routine_gym.demo import DEMO_SETS, DEMO_SUITE, DEMOS_DIR, demo_filename
 
     _needs("--num-routines", args.num_routines, args.num_routines >= 1, "≥ 1")
     folder = Path(args.dir) if args.dir else Path(DEMOS_DIR)
@@ -221,8 +220,28 @@ def cmd_show_demos(args: argparse.Namespace) -> int:
     files = sorted(folder.glob("*.npz"))
     shipped = {path.name for path in files}
     missing = [env_id for env_id in DEMO_SUITE if demo_filename(env_id) not in shipped]
-    print(f"{len(files)} demo(s) in {folder}")
-    miner = SequiturMiner(num_routines=args.num_routines)
+    label = "" if args.dir else " (demo set `current`: what every script reads by default)"
+    print(f"{len(files)} demo(s) in {folder}{label}")
+    _show_demo_files(files, args.num_routines)
+    for env_id in missing:
+        print(f"\n{env_id}: no demo in {folder} (expected {demo_filename(env_id)})")
+    if not args.dir:  # the sets the current demos replaced, kept for the runs made with them
+        for name, sub in DEMO_SETS.items():
+            older = sorted((folder / sub).glob("*.npz")) if sub else []
+            if older:
+                print(f"\n{len(older)} demo(s) of the older demo set `{name}` in {folder / sub} "
+                      f"(experiments at a budget with this set read them: --demo "
+                      f"{folder / sub / older[0].name} names one)")
+                _show_demo_files(older, args.num_routines)
+    return 0
+
+
+def _show_demo_files(files: list[Path], num_routines: int) -> None:
+    """Each demo file's env, score, steps, source and its mined routines."""
+    from routine_gym.demo import Demo
+    from routine_gym.mining import SequiturMiner
+
+    miner = SequiturMiner(num_routines=num_routines)
     for path in files:
         demo = Demo.load(path)
         meta = demo.meta
@@ -242,9 +261,6 @@ def cmd_show_demos(args: argparse.Namespace) -> int:
             print(f"  routine {k}: {library.name(k)}  (f = {library.frequencies[k]})")
         for w in caught:
             print(f"  note: {w.message}")
-    for env_id in missing:
-        print(f"\n{env_id}: no demo in {folder} (expected {demo_filename(env_id)})")
-    return 0
 
 
 def cmd_picture(args: argparse.Namespace) -> int:

@@ -267,5 +267,6 @@ def test_a_fair_sweep_tunes_then_runs_the_diagnosis_and_reports_it(tmp_path):
     assert "fewer updates alone" in report and "more updates alone" in report
     assert "the authors' code at the same lr schedule" in report
     assert "over 100 episodes" in report  # the fair budgets' random references
+    assert "## Demos" in report and "`demos/MinAtar-Breakout-v1.npz` | current |" in report
     rows = (out / "report" / "tune.csv").read_text().splitlines()
     assert len(rows) == 1 + 3 * 2  # A2C, RAPL-A2C, MacroAction × 2 grid points

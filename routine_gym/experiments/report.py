@@ -94,6 +94,31 @@ def _normalisation_lines(references: Mapping[str, Reference], demo_set: str = "f
             *table(("env", "normalisation", "random", "reference", "note"), rows)]
 
 
+def _demo_lines(out: Path) -> list[str]:
+    """The demos the sweep's runs mined, as its manifests recorded them (sweeps written before
+    2026-12-06 recorded none: nothing)."""
+    import json
+
+    used: dict[str, dict] = {}
+    for name in EXPERIMENTS:
+        path = out / f"{name}.json"
+        try:
+            demos = json.loads(path.read_text()).get("demos") if path.exists() else None
+        except (OSError, ValueError):
+            demos = None
+        if isinstance(demos, dict):
+            used.update({k: v for k, v in demos.items() if isinstance(v, dict)})
+    if not used:
+        return []
+    rows = [(env_id, f"`demos/{d.get('file')}`", d.get("demo_set", "–"),
+             num(d["score"], 1) if isinstance(d.get("score"), int | float) else "–",
+             str(d.get("sha256", ""))[:12]) for env_id, d in sorted(used.items())]
+    return ["", "## Demos", "",
+            "The shipped demo each game's routines were mined from (`routine_gym.demo."
+            "DEMO_SETS`; `routine-gym show-demos` lists both sets):", "",
+            *table(("env", "file", "demo set", "score", "SHA-256 (first 12)"), rows)]
+
+
 def _set_note(demo_set: str) -> str:
     """Which demos a report's references are (nothing for the first protocol's, whose reports
     said nothing of it)."""
@@ -221,6 +246,7 @@ def _write_report(out: Path, folder: Path, reps: int, seed: int,
     if sides is not None:
         lines += budget_comparison.section(w, *sides, out)
     lines += _normalisation_lines(references, demo_set, episodes)
+    lines += _demo_lines(out)
     atomic_write_text(folder / "report.md", "\n".join(lines).rstrip() + "\n")
     w.written.append(folder / "report.md")
     return w.written
