@@ -62,7 +62,7 @@ def test_every_suite_env_has_a_demo_with_provenance_that_the_scripts_default_to(
 def test_the_current_minatar_demos_score_at_least_the_best_learner_of_the_long_sweep(env_id):
     current = Demo.load(shipped_demo_path(env_id))
     assert current.score >= LONG_SWEEP_BEST[env_id]
-    assert current.meta["trained_steps"] >= 10_000_000
+    assert current.meta["trained_steps"] >= 5_000_000  # Seaquest, SpaceInvaders: 10^7
     first = Demo.load(shipped_demo_path(env_id, "first"))  # the first protocol's, kept
     assert first.meta["trained_steps"] == 5_000_000 and first.env_id == env_id
     assert shipped_demo_path(env_id, "first").endswith(f"first/{demo_filename(env_id)}")
