@@ -55,8 +55,10 @@ from routine_gym.networks import (
 )
 from routine_gym.plumbing.arguments import given_flags
 from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent
+from routine_gym.plumbing.divergence import check_update
 from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.loading import load_demo
+from routine_gym.plumbing.memory import check_rollout_memory
 from routine_gym.plumbing.run import (
     Every,
     eval_env_kwargs,
@@ -342,7 +344,8 @@ def main(args: Args) -> None:
     envs = make_vector_env(args.env_id, args.num_envs, args.seed, routines=library,
                            training=True, record_observations=args.mode == "rapl",
                            env_kwargs=train_env_kwargs(args), capture_video=args.capture_video,
-                           run_name=run.name, async_envs=args.async_envs)
+                           run_name=run.name, first_video_episode=run.first_video_episode,
+                           async_envs=args.async_envs)
     assert isinstance(envs.single_action_space, gym.spaces.Discrete), "only discrete actions"
     num_actions = int(envs.single_action_space.n)
     num_routines = len(library) if library is not None else 0
@@ -358,6 +361,9 @@ def main(args: Args) -> None:
     n, e = args.num_steps, args.num_envs
     obs_shape = envs.single_observation_space.shape
     obs_dtype = envs.single_observation_space.dtype
+    # The storage below, refused now when it cannot fit (--num-steps, --num-envs, the routines).
+    check_rollout_memory(envs.single_observation_space, n, e,
+                         observations=1 + max(max_len - 1, 1), numbers=5 + max_len)
     actions = np.zeros((n, e), dtype=np.int64)
     step_rewards = np.zeros((n, max_len, e), dtype=np.float64)
     lengths = np.ones((n, e), dtype=np.int64)
@@ -380,7 +386,7 @@ def main(args: Args) -> None:
     # --budget-unit decisions: the budget, the schedule and --checkpoint-every count decisions.
     global_step, iteration, decisions = run.resume(
         {"model": agent, "optimizer": optimizer}, global_step=0, iteration=0, decisions=0,
-        count="decisions" if args.budget_unit == "decisions" else "global_step",
+        count="decisions" if args.budget_unit == "decisions" else "global_step", filmed=envs,
         extra={"library": json.dumps(library.to_dict()) if library is not None else ""})
 
     # The env is reset with a seed that depends on where the run is, so a resumed run does not
@@ -520,7 +526,10 @@ def main(args: Args) -> None:
             + args.vf_coef * critic_loss(v_loss, prim_loss, args.critic_loss, args.prim_coef)
         optimizer.zero_grad()
         loss.backward()
-        nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+        grad_norm = nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+        check_update(global_step, loss, grad_norm, parts={
+            "value loss": v_loss, "policy loss": pg_loss, "primitive value loss": prim_loss,
+            "entropy": entropy_loss})  # stop before a non-finite update is applied
         optimizer.step()
 
         elapsed = max(time.time() - start_time, 1e-9)
