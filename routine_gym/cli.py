@@ -23,6 +23,7 @@ import importlib
 import math
 import os
 import sys
+import time
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -520,8 +521,17 @@ def cmd_experiment_run(args: argparse.Namespace) -> int:
 def cmd_experiment_report(args: argparse.Namespace) -> int:
     from routine_gym.experiments.report import write_report
 
-    for path in write_report(args.out, beside=args.beside):
+    start = time.monotonic()
+
+    def progress(line: str) -> None:
+        # stderr: stdout stays the list of files written, for a script to read.
+        print(f"report [{time.monotonic() - start:5.1f} s] {line}", file=sys.stderr, flush=True)
+
+    written = write_report(args.out, beside=args.beside, folder=args.report_dir,
+                           progress=progress)
+    for path in written:
         print(path)
+    progress(f"{len(written)} file(s) written in {written[-1].parent}")
     return 0
 
 

@@ -365,6 +365,21 @@ def seed_and_tune(seed: int, torch_threads: int) -> None:
     keep_freed_memory()  # a minibatch's blocks are reused, not page-faulted in again
 
 
+def profile_reward_scale(args: Any) -> None:
+    """Give a script's `--reward-scale` left unset (None) the env profile's
+    `EnvProfile.reward_scale`; a given flag wins, a resumed run keeps its saved scale. An env
+    id whose module cannot be imported is left to the run's env check, which names it (the
+    scale is then 1)."""
+    if not hasattr(args, "reward_scale") or args.reward_scale is not None:
+        return
+    from routine_gym.envs import profile_for
+
+    try:
+        args.reward_scale = profile_for(args.env_id).reward_scale
+    except ImportError:
+        args.reward_scale = 1.0
+
+
 def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
               budget: str = "total_timesteps", lower_budget: bool = False,
               extra_checks: ExtraChecks = (), preset: Callable[[Any], None] | None = None
@@ -390,6 +405,8 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
     """
     if preset is not None and not args.resume:
         preset(args)
+    if not args.resume:
+        profile_reward_scale(args)
     check_args(args, extra_checks)
     if getattr(args, "record_demo", None):
         check_writable(args.record_demo, "--record-demo")  # before training, not after
