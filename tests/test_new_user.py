@@ -232,10 +232,16 @@ def test_the_committed_long_snapshot_is_remade_with_its_comparison():
     # Its report has the budgets_* files; the recipe in its script and docs names --beside.
     long = REPO / "bench" / "results" / "experiments" / "long" / "report"
     assert (long / "budgets_fig2.csv").exists()
-    for where in (REPO / "bench" / "sweep_long.sh", REPO / "docs" / "experiments.md"):
-        text = where.read_text()
-        assert "--beside bench/results/experiments/cpu" in text.split(
-            "snapshot_experiments.py", 1)[1].split("\n\n", 1)[0], where
+    import re
+
+    recipe = re.compile(r"snapshot_experiments\.py \S+ bench/results/experiments/long"
+                        r"(?:[^\n]*\\\n)*[^\n]*")  # the command with its continued lines
+    for where in (REPO / "bench" / "sweep_long.sh", REPO / "docs" / "experiments.md",
+                  REPO / "bench" / "snapshot_experiments.py"):
+        found = recipe.findall(where.read_text())
+        assert found, where
+        for command in found:
+            assert "--beside bench/results/experiments/cpu" in command, (where, command)
 
 
 # -- `experiment report --out`, with progress on stderr -------------------------------------
