@@ -4,9 +4,10 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
-# torch's CPU build comes first from PyTorch's CPU wheel index (the default index's Linux torch
-# pulls CUDA, about 6 GB). Where that index cannot be reached, the plain install goes on and
-# takes torch from the default index; `make TORCH_INDEX=` skips the CPU index altogether.
+# torch's CPU build comes first, from PyTorch's CPU wheel index beside the default index (the
+# default index's Linux torch pulls CUDA, about 6 GB; the CPU build's version, 2.13.0+cpu, sorts
+# above it, and torch's own dependencies come from the default index). Where the CPU index cannot
+# be reached, torch comes from the default index; `make TORCH_INDEX=` skips the CPU index.
 TORCH_VERSION := 2.13.0
 TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 
@@ -18,9 +19,9 @@ $(STAMP): pyproject.toml setup.py routine_gym/_sequitur.cpp routine_gym/_minatar
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	@if [ -n "$(TORCH_INDEX)" ]; then \
-		echo "$(PY) -m pip install torch==$(TORCH_VERSION) --index-url $(TORCH_INDEX)"; \
+		echo "$(PY) -m pip install torch==$(TORCH_VERSION) --extra-index-url $(TORCH_INDEX)"; \
 		$(PY) -m pip install --quiet --retries 1 --timeout 20 "torch==$(TORCH_VERSION)" \
-			--index-url "$(TORCH_INDEX)" \
+			--extra-index-url "$(TORCH_INDEX)" \
 		|| echo "make: $(TORCH_INDEX) could not be used; torch comes from the default index"; \
 	fi
 	$(PY) -m pip install --quiet -e ".[dev]"

@@ -125,12 +125,12 @@ def test_a_sweep_script_uses_the_clones_venv_else_python3(name, tmp_path):
 
 def _make_install(tmp_path: Path, index_fails: bool, *flags: str) -> tuple[int, list[str], str]:
     """`make .venv/.installed` with a fake venv whose python logs each pip call (and fails the
-    one with --index-url when `index_fails`): no network, nothing installed."""
+    one with an index URL when `index_fails`): no network, nothing installed."""
     venv = tmp_path / "venv"
     log = tmp_path / "pip.log"
     venv_bin = venv / "bin"
     venv_bin.mkdir(parents=True)
-    fail = 'case "$*" in *--index-url*) exit 1;; esac\n' if index_fails else ""
+    fail = 'case "$*" in *index-url*) exit 1;; esac\n' if index_fails else ""
     (venv_bin / "python").write_text(f"#!/bin/sh\necho \"$*\" >> {log}\n{fail}exit 0\n")
     (venv_bin / "python").chmod(0o755)
     proc = subprocess.run(["make", "-s", "-f", str(REPO / "Makefile"), f"VENV={venv}",
@@ -143,7 +143,7 @@ def _make_install(tmp_path: Path, index_fails: bool, *flags: str) -> tuple[int, 
 def test_make_installs_the_cpu_torch_first(tmp_path):
     rc, calls, _ = _make_install(tmp_path, index_fails=False)
     assert rc == 0 and (tmp_path / "venv" / ".installed").exists()
-    torch_call = [c for c in calls if "--index-url" in c]
+    torch_call = [c for c in calls if "--extra-index-url" in c]
     assert len(torch_call) == 1
     assert "torch==2.13.0" in torch_call[0]
     assert "https://download.pytorch.org/whl/cpu" in torch_call[0]
@@ -162,7 +162,16 @@ def test_make_goes_on_with_the_plain_install_when_the_cpu_index_is_out_of_reach(
 def test_make_without_a_torch_index_makes_the_plain_install_only(tmp_path):
     rc, calls, _ = _make_install(tmp_path, True, "TORCH_INDEX=")
     assert rc == 0
-    assert not [c for c in calls if "--index-url" in c]
+    assert not [c for c in calls if "index-url" in c]
+
+
+def test_the_venv_make_built_holds_the_cpu_torch():
+    # The clone's .venv (make test's, CI's): torch's CPU build, no CUDA libraries beside it.
+    if Path(sys.prefix).resolve() != (REPO / ".venv").resolve():
+        pytest.skip("not the venv `make` builds in this clone")
+    assert torch.__version__.endswith("+cpu") and torch.version.cuda is None
+    site = Path(torch.__file__).parent.parent
+    assert not list(site.glob("nvidia*")), "a CUDA torch's libraries are installed"
 
 
 def test_the_makefiles_torch_is_the_projects():
