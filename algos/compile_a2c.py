@@ -127,9 +127,10 @@ class Args:
     """decisions per environment per rollout (N)"""
     gamma: float = 0.99
     """the discount factor γ, once per decision (MacroAction)"""
-    reward_scale: float = 1.0
-    """multiply each primitive reward by this for learning (after Atari's sign clipping); the
-    logged returns stay the game's score"""
+    reward_scale: float | None = None
+    """multiply each reward by this for learning (after Atari's sign clipping); the logged
+    returns stay the game's score. Unset: the env profile's scale (MiniQbert 0.01, its 25- and
+    100-point rewards swamp the value loss at 1; every other env 1)"""
     ent_coef: float = 0.01
     """coefficient of the entropy bonus (λ_entropy)"""
     vf_coef: float = 0.5

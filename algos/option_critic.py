@@ -92,8 +92,10 @@ class Args:
     """steps per environment per rollout (N)"""
     gamma: float = 0.99
     """the discount factor γ"""
-    reward_scale: float = 1.0
-    """multiply each reward by this for learning (after Atari's sign clipping)"""
+    reward_scale: float | None = None
+    """multiply each reward by this for learning (after Atari's sign clipping); the logged
+    returns stay the game's score. Unset: the env profile's scale (MiniQbert 0.01, its 25- and
+    100-point rewards swamp the value loss at 1; every other env 1)"""
     num_options: int = 4
     """the number of options"""
     option_epsilon: float = 0.1

@@ -133,10 +133,10 @@ class Args:
     run), so RAPL and MacroAction make as many updates as A2C on as many frames)"""
     gamma: float = 0.99
     """the discount factor γ per primitive step"""
-    reward_scale: float = 1.0
-    """multiply each primitive reward by this for learning (after Atari's sign clipping); the
-    logged returns stay the game's score. Large rewards (MiniQbert's 25 and 100) train better
-    at 0.01"""
+    reward_scale: float | None = None
+    """multiply each reward by this for learning (after Atari's sign clipping); the logged
+    returns stay the game's score. Unset: the env profile's scale (MiniQbert 0.01, its 25- and
+    100-point rewards swamp the value loss at 1; every other env 1)"""
     ent_coef: float = 0.01
     """coefficient of the entropy bonus (λ_entropy)"""
     vf_coef: float = 0.5

@@ -172,9 +172,10 @@ class Args:
     """the maximum norm for gradient clipping"""
     target_kl: float | None = None
     """stop a rollout's epochs early once the approximate KL exceeds this (None: never)"""
-    reward_scale: float = 1.0
-    """multiply each primitive reward by this for learning (after Atari's sign clipping); the
-    logged returns stay the game's score"""
+    reward_scale: float | None = None
+    """multiply each reward by this for learning (after Atari's sign clipping); the logged
+    returns stay the game's score. Unset: the env profile's scale (MiniQbert 0.01, its 25- and
+    100-point rewards swamp the value loss at 1; every other env 1)"""
     async_envs: bool = False
     """step the environments in subprocesses (AsyncVectorEnv) instead of in this process"""
 

@@ -23,6 +23,8 @@ import importlib
 import math
 import os
 import sys
+import threading
+import time
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -536,8 +538,32 @@ def cmd_experiment_run(args: argparse.Namespace) -> int:
 def cmd_experiment_report(args: argparse.Namespace) -> int:
     from routine_gym.experiments.report import write_report
 
-    for path in write_report(args.out, beside=args.beside):
+    start = time.monotonic()
+    pending: list[threading.Timer] = []
+
+    def say(line: str, at: float | None = None) -> None:
+        # stderr: stdout stays the list of files written, for a script to read.
+        at = time.monotonic() - start if at is None else at
+        print(f"report [{at:5.1f} s] {line}", file=sys.stderr, flush=True)
+
+    def progress(line: str) -> None:
+        # A step's line shows once the step has taken a second: a quick report, or one stopped
+        # by a mistake (a bad file is found while reading), prints only its one-line error.
+        for timer in pending:
+            timer.cancel()
+        pending[:] = [threading.Timer(1.0, say, (line, time.monotonic() - start))]
+        pending[0].daemon = True
+        pending[0].start()
+
+    try:
+        written = write_report(args.out, beside=args.beside, folder=args.report_dir,
+                               progress=progress)
+    finally:
+        for timer in pending:
+            timer.cancel()
+    for path in written:
         print(path)
+    say(f"{len(written)} file(s) written in {written[-1].parent}")
     return 0
 
 

@@ -38,7 +38,7 @@ TensorBoard and the envs load when a report is written.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -138,7 +138,8 @@ def report_files() -> tuple[str, ...]:
 
 
 def write_report(out: str | Path, *, reps: int = 2000, seed: int = 0,
-                 beside: str | Path | None = None) -> list[Path]:
+                 beside: str | Path | None = None, folder: str | Path | None = None,
+                 progress: Callable[[str], None] | None = None) -> list[Path]:
     """Aggregate the sweep in `out` and write `out/report/` (see the module docstring).
 
     The report only reads the sweep folder, so it may be written while a sweep runs there (it
@@ -152,6 +153,10 @@ def write_report(out: str | Path, *, reps: int = 2000, seed: int = 0,
         seed: seed of the resampling (the same seed, the same intervals).
         beside: another sweep folder whose rl experiment ran at another budget: the report
             also compares the two budgets (`budget_comparison`).
+        folder: where the report goes (`report --out`); default `out/report`.
+        progress: called with one line before each step that takes time (reading the
+            sweep, the reference scores, each experiment, the budgets side by side), so a
+            report of a large sweep is not a minute of silence.
 
     Returns:
         The paths written: each experiment's PNG and CSV, `reference_scores.json`, and
@@ -172,12 +177,12 @@ def write_report(out: str | Path, *, reps: int = 2000, seed: int = 0,
     if not out.is_dir():
         raise UsageError(f"{out}: no such sweep folder (write one with `routine-gym "
                          "experiment run --out`)")
-    folder = out / "report"
+    folder = out / "report" if folder is None else Path(folder)
     if folder.exists() and not folder.is_dir():
         raise UsageError(f"{folder}: a file, where the report's folder goes; move it away")
     sides = budget_comparison.load_sides(out, beside) if beside is not None else None
     try:
-        written = _write_report(out, folder, reps, seed, sides)
+        written = _write_report(out, folder, reps, seed, sides, progress or (lambda line: None))
         for name in report_files():
             stale = folder / name
             if stale not in written and (stale.is_file() or stale.is_symlink()):
@@ -197,8 +202,9 @@ def _sweep_note(out: Path) -> list[str]:
 
 
 def _write_report(out: Path, folder: Path, reps: int, seed: int,
-                  sides: tuple[budget_comparison.Side, budget_comparison.Side] | None
-                  ) -> list[Path]:
+                  sides: tuple[budget_comparison.Side, budget_comparison.Side] | None,
+                  progress: Callable[[str], None]) -> list[Path]:
+    progress(f"reading the runs of {out}")
     results: dict[str, Mapping[str, Any] | None] = {}
     manifests = {name: load_runs(out, name, results) for name in EXPERIMENTS}
     if all(m is None for m in manifests.values()):
@@ -207,6 +213,8 @@ def _write_report(out: Path, folder: Path, reps: int, seed: int,
     envs = {r.env_id for name, experiment in EXPERIMENTS.items()
             if experiment.normalised and manifests[name]
             for r in manifests[name].runs if r.role == "main" and r.finished}
+    progress(f"reference scores of {len(envs)} game(s) (the random policy's is played once "
+             "per game, then cached in reference_scores.json)")
     budget_names = {m.budget for m in manifests.values() if m is not None}
     sizes = BUDGETS.get(min(budget_names)) if len(budget_names) == 1 else None
     demo_set = sizes.demo_set if sizes is not None else "first"
@@ -242,8 +250,11 @@ def _write_report(out: Path, folder: Path, reps: int, seed: int,
             lines += ["No finished run: no figure.", ""]
             continue
         lines += [f"Figure: `{experiment.file}.png`, data: `{experiment.file}.csv`.", ""]
+        progress(f"{experiment.figure} ({name}): {sum(r.finished for r in main)} finished "
+                 "run(s), bootstrap CIs and figure")
         lines += experiment.section(w, main)
     if sides is not None:
+        progress("the rl experiment at both budgets (--beside)")
         lines += budget_comparison.section(w, *sides, out)
     lines += _normalisation_lines(references, demo_set, episodes)
     lines += _demo_lines(out)

@@ -432,6 +432,19 @@ def seed_and_tune(seed: int, torch_threads: int) -> None:
 def _with_stride_checks(extra: ExtraChecks) -> Callable[[Any], list]:
     """A script's own argument rules and `--seed-stride`'s (`plumbing.seeds.stride_checks`)."""
     return lambda args: [*(extra(args) if callable(extra) else extra), *stride_checks(args)]
+def profile_reward_scale(args: Any) -> None:
+    """Give a script's `--reward-scale` left unset (None) the env profile's
+    `EnvProfile.reward_scale`; a given flag wins, a resumed run keeps its saved scale. An env
+    id whose module cannot be imported is left to the run's env check, which names it (the
+    scale is then 1)."""
+    if not hasattr(args, "reward_scale") or args.reward_scale is not None:
+        return
+    from routine_gym.envs import profile_for
+
+    try:
+        args.reward_scale = profile_for(args.env_id).reward_scale
+    except ImportError:
+        args.reward_scale = 1.0
 
 
 def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
@@ -460,6 +473,8 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
     if preset is not None and not args.resume:
         preset(args)
     extra_checks = _with_stride_checks(extra_checks)
+    if not args.resume:
+        profile_reward_scale(args)
     check_args(args, extra_checks)
     if getattr(args, "record_demo", None):
         check_writable(args.record_demo, "--record-demo")  # before training, not after
