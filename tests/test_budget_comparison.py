@@ -267,7 +267,7 @@ def test_bad_folders_are_one_line_errors(sweeps, tmp_path):
     (no_rl_runs / "rl.json").write_text(json.dumps({"budget": "cpu", "runs": []}))
     cases = [(tmp_path / "nowhere", "nowhere: no such sweep folder (--beside names"),
              (tmp_path / "file", "file: a file, not a sweep folder"),
-             (long / "runs", "runs: not a sweep folder: none of imitation.json"),
+             (long / "runs", "runs: not a sweep folder: none of tune.json, imitation.json"),
              (tmp_path, f"{tmp_path}: no rl experiment there (no rl.json)"),
              (no_rl_runs, "rl.json: no run of A2C or RAPL-A2C: nothing to compare"),
              (long, f"{long} and {long}: both at 10^4 agent steps (budget long): --beside "

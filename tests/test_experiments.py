@@ -21,16 +21,19 @@ from routine_gym.experiments.registry import EXPERIMENTS, build, count_runs
 from routine_gym.experiments.specs import BUDGETS, RunSpec
 from routine_gym.plumbing.errors import UsageError
 
-NAMES = ["imitation", "rl", "curves", "coinrun", "scalability", "ablation", "diagnosis"]
+NAMES = ["tune", "imitation", "rl", "curves", "coinrun", "scalability", "ablation", "diagnosis"]
+#: The experiments with runs at the smoke budget (tune has runs only where a budget tunes).
+SMOKE = [n for n in NAMES if n != "tune"]
 CLI = [sys.executable, "-m", "routine_gym.cli"]
 REPO = Path(__file__).resolve().parents[1]
 
 
 # -- specs ---------------------------------------------------------------------------------------
 
-def test_the_seven_experiments_and_four_budgets():
+def test_the_eight_experiments_and_seven_budgets():
     assert list(EXPERIMENTS) == NAMES
-    assert list(BUDGETS) == ["smoke", "cpu", "paper", "long"]  # long: rl alone (test_long_budget)
+    # long: rl alone (test_long_budget); the fair protocol's three: tests/test_fair_protocol.py
+    assert list(BUDGETS) == ["smoke", "cpu", "paper", "long", "smoke-fair", "fair", "fair-long"]
     assert len(specs.PAPER_GAMES) == 30 and "ALE/WizardOfWor-v5" in specs.PAPER_GAMES
 
 
@@ -149,7 +152,7 @@ def test_scalability_leaves_out_a_length_the_shipped_demo_has_no_routine_of():
 
 
 @pytest.mark.parametrize(("kwargs", "match"), [
-    ({"name": "nope", "budget": "cpu"}, "unknown experiment 'nope'; choose from imitation, rl"),
+    ({"name": "nope", "budget": "cpu"}, "unknown experiment 'nope'; choose from tune, imitation, rl"),
     ({"name": "rl", "budget": "huge"}, "unknown budget 'huge'; choose from smoke, cpu, paper"),
     ({"name": "rl", "budget": "cpu", "seeds": [4]}, "--seeds 4 is outside the cpu budget's seeds"),
     ({"name": "rl", "budget": "cpu", "envs": ["ALE/Pong-v5"]},
@@ -206,7 +209,7 @@ def _manifest_keys(out: Path, name: str) -> set[str]:
     return {r["key"] for r in json.loads((out / f"{name}.json").read_text())["runs"]}
 
 
-def _sweep_all(out: Path, backend: str, names: tuple[str, ...] = NAMES) -> io.StringIO:
+def _sweep_all(out: Path, backend: str, names: tuple[str, ...] = SMOKE) -> io.StringIO:
     stream = io.StringIO()
     for name in names:
         summary = sweep.run_experiment(name, "smoke", out, jobs=2, backend=backend,
@@ -225,7 +228,7 @@ def local_sweep(tmp_path_factory) -> tuple[Path, str]:
 def test_smoke_sweep_of_all_seven_finishes_every_run(local_sweep):
     out, printed = local_sweep
     done = _results(out)
-    for name in NAMES:
+    for name in SMOKE:
         keys = _manifest_keys(out, name)
         assert keys and keys <= set(done), name
         for key in keys:
@@ -479,7 +482,7 @@ def test_cli_list_shows_every_experiment_with_its_runs_per_budget():
                           timeout=120)
     assert proc.returncode == 0, proc.stderr
     rows = {line.split()[0]: line for line in proc.stdout.splitlines() if line[:1].isalpha()}
-    for name in NAMES:
+    for name in SMOKE:
         assert name in rows
     assert "90 runs 90.0M steps" in rows["rl"] and "325 runs" in rows["rl"]
     assert "125 runs" in rows["ablation"]

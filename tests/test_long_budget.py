@@ -102,11 +102,16 @@ def test_experiment_list_as_a_user_shows_the_long_budget(tmp_path):
     proc = _user(str(BIN / "routine-gym"), "experiment", "list", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-3000:]
     lines = proc.stdout.splitlines()
-    assert lines[0].split() == ["experiment", "figure", "smoke", "cpu", "paper", "long"]
+    assert lines[0].split() == ["experiment", "figure", "smoke", "cpu", "paper", "long",
+                                "smoke-fair", "fair", "fair-long"]
     rows = {line.split()[0]: line for line in lines[1:] if line[:1].isalpha()}
-    assert rows["rl"].endswith("45 runs 450.0M steps")
+
+    def long_cell(row: str) -> str:  # name (12) and figure (8), then cells of 22 + 2 spaces
+        return row[22 + 3 * 24: 22 + 4 * 24].strip()
+
+    assert long_cell(rows["rl"]) == "45 runs 450.0M steps"
     for name in OTHERS:
-        assert rows[name].endswith("–"), rows[name]
+        assert long_cell(rows[name]) == "–", rows[name]
     assert "Traceback" not in proc.stderr
     assert any(line.startswith("long   the paper's 10^7 agent steps on MinAtar's five games, "
                                "rl only") for line in lines)
