@@ -6,9 +6,9 @@ STAMP := $(VENV)/.installed
 
 .PHONY: test run lint bench clean
 
-$(STAMP): pyproject.toml setup.py routine_gym/_sequitur.cpp routine_gym/_minatar_core.cpp \
-		routine_gym/_records.cpp routine_gym/_masked_gru.cpp routine_gym/_masked_gru_kernel.h \
-		routine_gym/_pybuffers.h routine_gym/_wrapper_core.cpp
+# The compiled cores are optional: without a C++17 compiler the install skips them (and says
+# which); their Python twins run (docs/native.md).
+$(STAMP): pyproject.toml setup.py $(wildcard routine_gym/_native/*.cpp routine_gym/_native/*.h)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e ".[dev]"
