@@ -303,12 +303,11 @@ def _backend_module(backend: str) -> ModuleType | None:
     if backend == "python":
         return None
     if backend == "c":
-        core = _native.core("sequitur")
-        if core is None:
-            raise ImportError(
-                f"backend='c' needs the compiled core 'sequitur': "
-                f"{_native.unavailable('sequitur')}; use backend='python'")
-        return core
+        reason = _native.unavailable("sequitur")
+        if reason is not None:
+            raise ImportError(f"backend='c' needs the compiled core 'sequitur': {reason}; use "
+                              "backend='python'")
+        return _native.core("sequitur")
     if backend != "auto":
         raise ValueError(f"backend must be 'auto', 'c' or 'python', got {backend!r}")
     return _native.core("sequitur")

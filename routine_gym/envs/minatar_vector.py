@@ -192,10 +192,9 @@ class MinAtarVectorEnv(VectorEnv):
         if compiled and game_name not in COMPILED_GAMES:
             raise ValueError(f"compiled=True: {env_id} has no compiled core (the games with one: "
                              f"{', '.join(COMPILED_GAMES)})")
+        if compiled and (reason := _native.unavailable("minatar_core")) is not None:
+            raise ImportError(f"compiled=True needs the compiled core 'minatar_core': {reason}")
         core = _native.core("minatar_core") if compiled is not False else None
-        if compiled and core is None:
-            raise ImportError("compiled=True needs the compiled core 'minatar_core': "
-                              f"{_native.unavailable('minatar_core')}")
         self.compiled = core is not None and game_name in COMPILED_GAMES
         if self.compiled:
             # The games' state lives in these arrays between resets (`_load_core`); each game's
