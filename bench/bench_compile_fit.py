@@ -319,10 +319,11 @@ def worker(args) -> None:
         print(f"# peer: {peer_gru}; checked: {check}", flush=True)
         gru = "GRUCell loop"
     else:
+        from routine_gym import _native
         from routine_gym.baselines.compile import masked_gru
 
         probe_tensor = torch.zeros(1)
-        gru = (f"compiled loops ({masked_gru._core.simd()})"
+        gru = (f"compiled loops ({_native.core('masked_gru').simd()})"
                if masked_gru._compiled(*[probe_tensor] * 4) else "torch loop")
 
     seconds: dict[str, float] = {}
