@@ -149,7 +149,8 @@ def test_integer_like_actions_are_accepted(action, actions):
     ("result", "error", "match"),
     [
         ((np.zeros(2, np.float32), 1.0, False, False), ValueError, "expected 5, got 4"),
-        ((np.zeros(2, np.float32), "one", False, False, {}), ValueError, "could not convert string to float"),
+        ((np.zeros(2, np.float32), "one", False, False, {}), ValueError,
+         "could not convert string to float"),
     ],
 )
 def test_a_malformed_inner_step_is_an_error(result, error, match):

@@ -71,6 +71,7 @@ DOMAINS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "demo_episodes": _AT_LEAST_1,
     "checkpoint_every": _AT_LEAST_0,
     "log_every": _AT_LEAST_1,
+    "scalars_every": _AT_LEAST_1,
     "torch_threads": _AT_LEAST_0,
     "num_levels": _AT_LEAST_0,
     "start_level": _AT_LEAST_0,
