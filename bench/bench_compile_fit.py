@@ -24,7 +24,7 @@ them out):
 
 - the torch loop (`--torch-loop`, kind ``torch-loop``): the same fit with
   `ROUTINE_GYM_COMPILE_GRU=torch`, so `masked_gru` runs its loops in torch operations, as every
-  fit did before the compiled loops (`routine_gym/_masked_gru.cpp`);
+  fit did before the compiled loops (`routine_gym/_native/_masked_gru.cpp`);
 - the GRUCell loop (`--peer`, kind ``peer``): the recognition GRU as routine-gym had it before
   `routine_gym/baselines/compile/masked_gru.py` (git HEAD~1 of that change):
   `hidden = self.gru(inputs[:, t], hidden) * mask[:, t, None]` over the window, a

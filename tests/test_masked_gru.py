@@ -74,7 +74,7 @@ def test_the_elbo_decoder_pass_is_policy_logits_of_every_step_and_segment():
                                rtol=1e-12, atol=1e-12)
 
 
-# -- the compiled loops (routine_gym/_masked_gru.cpp) against the torch loop ---------------------
+# -- the compiled loops (routine_gym/_native/_masked_gru.cpp) against the torch loop --------------
 
 import contextlib  # noqa: E402
 
