@@ -12,6 +12,7 @@ $(STAMP): pyproject.toml setup.py $(wildcard routine_gym/_native/*.cpp routine_g
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e ".[dev]"
+	$(PY) -m routine_gym._native
 	touch $(STAMP)
 
 test: $(STAMP)

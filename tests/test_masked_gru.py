@@ -85,9 +85,8 @@ from routine_gym import _native  # noqa: E402
 
 core = _native.core("masked_gru")
 # Not built, or ROUTINE_GYM_NATIVE turns it off: the torch loop's tests above still run.
-needs_core = pytest.mark.skipif(
-    core is None, reason=f"the compiled core 'masked_gru' is not there "
-                         f"({_native.unavailable('masked_gru')})")
+needs_core = pytest.mark.skipif(core is None,
+                                reason=f"masked_gru: {_native.unavailable('masked_gru')}")
 
 BUILDS = ["best", "portable"]
 

@@ -20,8 +20,8 @@ COMPILED_IDS = ("MinAtar/Breakout-v1", "MinAtar/SpaceInvaders-v1", "MinAtar/Free
 #: Whether the compiled core runs here (built, on, and MinAtar the version it ports); without it
 #: the Python loop's tests run and the core's skip.
 HAS_CORE = _native.core("minatar_core") is not None
-needs_core = pytest.mark.skipif(not HAS_CORE, reason="the compiled core 'minatar_core' is not "
-                                f"there ({_native.unavailable('minatar_core')})")
+needs_core = pytest.mark.skipif(not HAS_CORE,
+                                reason=f"minatar_core: {_native.unavailable('minatar_core')}")
 
 
 def _flat(info: dict, prefix: str = "") -> dict:

@@ -97,3 +97,18 @@ def test_only_the_loader_imports_a_compiled_core():
         if path != loader and pattern.search(path.read_text())
     ]
     assert offenders == []
+
+
+def test_the_module_says_which_cores_run(tmp_path):
+    """`python -m routine_gym._native` (what `make` prints after installing): a line per core."""
+    proc = subprocess.run([sys.executable, "-m", "routine_gym._native"], cwd=tmp_path,
+                          env={"PATH": "/usr/bin:/bin", "ROUTINE_GYM_NATIVE": "minatar_core"},
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    assert lines[0] == ("compiled core sequitur: not in use: ROUTINE_GYM_NATIVE=minatar_core "
+                        "turns it off")
+    assert lines[1].startswith("compiled core minatar_core: ")
+    assert lines[1].endswith("built, in use") or "not built" in lines[1]
+    assert lines[2].startswith("compiled core masked_gru: not in use: ROUTINE_GYM_NATIVE=")
+    assert len(lines) == 3

@@ -11,8 +11,7 @@ from routine_gym.sequitur import Grammar, RuleRef, induce
 
 core = _native.core("sequitur")
 if core is None:  # not built, or ROUTINE_GYM_NATIVE turns it off: the Python twin alone
-    pytest.skip(f"the compiled core 'sequitur' is not there ({_native.unavailable('sequitur')})",
-                allow_module_level=True)
+    pytest.skip(f"sequitur: {_native.unavailable('sequitur')}", allow_module_level=True)
 
 R1, R2 = RuleRef(1), RuleRef(2)
 
