@@ -5,8 +5,8 @@ Each core is a C++ twin of a Python function that stays the reference and the fa
 whole run and its tests):
 
 - `sequitur` (`_sequitur.cpp`): `routine_gym.sequitur`'s grammar induction and expansion;
-- `minatar_core` (`_minatar_core.cpp`): `routine_gym.envs.minatar_vector`'s games, the ports of
-  MinAtar's Python games of `minatar` `MINATAR_VERSION`;
+- `minatar_core` (`_minatar_core.cpp`): `routine_gym.envs.minatar_vector`'s games, ports of the
+  Python games of `minatar` 1.0.15 (`MINATAR_VERSION`);
 - `masked_gru` (`_masked_gru.cpp`): `routine_gym.baselines.compile.masked_gru`'s loops.
 
 Every core is optional: `pip install` without a C++17 compiler skips it (and says so) and the
