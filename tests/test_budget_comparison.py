@@ -205,8 +205,8 @@ def test_a_game_missing_at_one_budget_is_reported_as_missing(sweeps):
             ) in text
     assert (f"| {SEAQUEST} | 10^4 | 0/0/0 | – | – | – | – | no runs | – | no runs | – | – | – "
             "| – | – |") in text
-    assert ("**RAPL-A2C same or better than A2C on 0 of 3 games at 10^3 steps and 1 of 1 "
-            "games at 10^4 steps**") in text
+    assert ("**RAPL-A2C same or better than A2C (S_R ≥ S_A, as Fig. 2 counts) on 0 of 3 games "
+            "at 10^3 steps and 1 of 1 games at 10^4 steps**") in text
     assert f"{BREAKOUT}: worse → better (-40.0 % ± 20.0 % → 42.9 % ± 0.0 %)." in text
 
 
@@ -307,3 +307,21 @@ def test_the_docstring_examples_hold():
 
     for module in (bc, run_counters):  # the verdict rule, steps' labels, the routine shares
         assert doctest.testmod(module).failed == 0, module.__name__
+
+
+def test_same_or_better_counts_as_fig2_does_not_by_the_verdicts():
+    # MiniQbert in the committed sweeps: S_R 1047.8 against S_A 1050, within a standard error,
+    # so its verdict is *same*; Fig. 2 counts S_R ≥ S_A, and the two reports must agree.
+    side = bc.Side(Path("."), "cpu", 1000, [], None)
+
+    def row(env_id, s_a, s_r, verdict):
+        return bc.Row(env_id, side, {}, {}, {"A2C": s_a, "RAPL-A2C": s_r}, {}, {},
+                      {"RAPL-A2C": verdict}, {}, {}, {})
+
+    rows = {("MiniQbert-v0", 1000): row("MiniQbert-v0", 1050.0, 1047.8, "same"),
+            ("Freeway", 1000): row("Freeway", 20.0, 20.0, "same"),
+            ("Breakout", 1000): row("Breakout", 5.0, 7.0, "better"),
+            ("Asterix", 1000): row("Asterix", 3.0, 1.0, "worse"),
+            ("Seaquest", 1000): row("Seaquest", math.nan, math.nan, bc.NO_RUNS)}
+    games = ["MiniQbert-v0", "Freeway", "Breakout", "Asterix", "Seaquest"]
+    assert bc._same_or_better(rows, games, side) == (2, 4)  # Freeway (equal) and Breakout

@@ -6,7 +6,8 @@ The scripts in `algos/` (through `routine_gym.plumbing.run.run_script`) and the 
 command print it as one line on stderr, `SCRIPT: error: MESSAGE`, and exit with code 2, without a
 traceback; so do Gymnasium's own errors (an unknown env id) and a missing file. `--debug` (or
 `ROUTINE_GYM_DEBUG=1` in the environment) shows the traceback instead. Anything else is a bug and
-keeps its traceback.
+keeps its traceback. A training run that diverges (`routine_gym.plumbing.divergence`) is one line
+too, with exit code 1: the command was valid, the run failed.
 """
 
 from __future__ import annotations
