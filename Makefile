@@ -11,11 +11,11 @@ STAMP := $(VENV)/.installed
 TORCH_VERSION := 2.13.0
 TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 
-.PHONY: test run lint bench clean
+.PHONY: test test-twins run lint bench clean
 
-$(STAMP): pyproject.toml setup.py routine_gym/_sequitur.cpp routine_gym/_minatar_core.cpp \
-		routine_gym/_records.cpp routine_gym/_masked_gru.cpp routine_gym/_masked_gru_kernel.h \
-		routine_gym/_pybuffers.h routine_gym/_wrapper_core.cpp
+# The compiled cores are optional: without a C++17 compiler the install skips them (and says
+# which); their Python twins run (docs/native.md).
+$(STAMP): pyproject.toml setup.py $(wildcard routine_gym/_native/*.cpp routine_gym/_native/*.h)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	@if [ -n "$(TORCH_INDEX)" ]; then \
@@ -25,10 +25,21 @@ $(STAMP): pyproject.toml setup.py routine_gym/_sequitur.cpp routine_gym/_minatar
 		|| echo "make: $(TORCH_INDEX) could not be used; torch comes from the default index"; \
 	fi
 	$(PY) -m pip install --quiet -e ".[dev]"
+	$(PY) -m routine_gym._native
 	touch $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2 --doctest-modules routine_gym tests
+
+# The Python twins are the product too: the tests of every script's smoke run, the wrapper,
+# mining and MinAtar again with every compiled core turned off (docs/native.md), as .ci/run's
+# second leg. About 2 minutes on 2 cores.
+TWIN_TESTS := tests/test_native.py tests/test_wrapper.py tests/test_wrapper_step.py \
+	tests/test_sequitur.py tests/test_mining.py tests/test_minatar.py \
+	tests/test_minatar_vector.py tests/test_masked_gru.py tests/test_as_a_user.py
+test-twins: $(STAMP)
+	ROUTINE_GYM_NATIVE=0 $(PY) -m pytest -q -n 2 $(TWIN_TESTS) \
+		-k "not test_as_a_user or each_script or mine_show"
 
 # RAPL-A2C on Qbert from the shipped demo, with a budget that ends in about 10 minutes on a
 # 2-core CPU; the paper's budget is `python algos/rapl_a2c.py --env-id ALE/Qbert-v5` (10M steps).

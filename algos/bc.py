@@ -33,6 +33,7 @@ from torch.distributions.categorical import Categorical
 import routine_gym
 from routine_gym.imitation import agent_view_states, demo_pairs
 from routine_gym.networks import ObservationEncoder, layer_init
+from routine_gym.plumbing.counters import scalars_due
 from routine_gym.plumbing.divergence import check_update
 from routine_gym.plumbing.loading import check_demo_env, load_demo
 from routine_gym.plumbing.memory import check_memory
@@ -82,6 +83,9 @@ class Args:
     resume: str | None = None
     """checkpoint file (or run folder) to resume from, with its saved settings
     (a --gradient-steps other than the default raises the budget to it)"""
+    scalars_every: int = 100
+    """write the TensorBoard scalars (loss, accuracy, SPS) every this many gradient steps and at
+    the last one"""
     log_every: int = 1_000
     """print a progress line every this many gradient steps"""
     run_dir: str = "runs"
@@ -136,7 +140,7 @@ def main(args: Args) -> dict | None:
         check_update(step, loss, parts={"BC loss": loss}, unit="gradient step")
         optimizer.step()
         sps = int((step - start_step) / max(time.time() - start_time, 1e-9))
-        if step % 100 == 0 or step == args.gradient_steps:
+        if scalars_due(step, args.scalars_every, last=step == args.gradient_steps):
             accuracy = (logits.argmax(1) == actions[i]).float().mean().item()
             writer.add_scalar("losses/bc_loss", loss.item(), step)
             writer.add_scalar("losses/accuracy", accuracy, step)

@@ -77,7 +77,7 @@ from routine_gym.baselines.compile import (
 from routine_gym.envs.factory import make_env
 from routine_gym.imitation.agent_view import agent_view_states, decision_steps
 from routine_gym.networks import ObservationEncoder, categorical_policy, layer_init
-from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent
+from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent, scalars_due
 from routine_gym.plumbing.divergence import check_update
 from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.loading import load_demo
@@ -189,6 +189,10 @@ class Args:
     (a --total-timesteps other than the default sets a new budget)"""
     eval_episodes: int = 10
     """episodes to evaluate the final policy on (0 disables); results in eval.json"""
+    scalars_every: int = 100
+    """write the per-update TensorBoard scalars (losses, learning rate, SPS, counters) every this
+    many updates and at the last one, like SB3's `log_interval` (A2C: 100); episode returns are
+    written at every episode end"""
     log_every: int = 10_000
     """print a progress line every this many primitive steps (decisions with --budget-unit
     decisions)"""
@@ -435,23 +439,25 @@ def main(args: Args) -> dict | None:
 
         elapsed = max(time.time() - start_time, 1e-9)
         sps = int((global_step - start_step) / elapsed)
-        writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
-        writer.add_scalar("losses/value_loss", v_loss.item(), global_step)
-        writer.add_scalar("losses/policy_loss", pg_loss.item(), global_step)
-        writer.add_scalar("losses/entropy", entropy_loss.item(), global_step)
-        writer.add_scalar("charts/SPS", sps, global_step)
-        writer.add_scalar("charts/decisions_per_second",
-                          int((decisions - start_decisions) / elapsed), global_step)
-        counts.log(global_step, decisions, iteration)
         usage = action_counts / max(action_counts.sum(), 1)
-        writer.add_scalar("options/primitive_usage", usage[:num_primitives].sum(), global_step)
-        for k in range(num_options):
-            writer.add_scalar(f"options/usage_{k}", usage[num_primitives + k], global_step)
-            chosen = action_counts[num_primitives + k]
-            if chosen:
-                writer.add_scalar(f"options/length_{k}", option_steps[k] / chosen, global_step)
-
         spent = budget_spent(args.budget_unit, global_step, decisions)
+        if scalars_due(iteration, args.scalars_every, last=spent >= args.total_timesteps):
+            writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"],
+                              global_step)
+            writer.add_scalar("losses/value_loss", v_loss.item(), global_step)
+            writer.add_scalar("losses/policy_loss", pg_loss.item(), global_step)
+            writer.add_scalar("losses/entropy", entropy_loss.item(), global_step)
+            writer.add_scalar("charts/SPS", sps, global_step)
+            writer.add_scalar("charts/decisions_per_second",
+                              int((decisions - start_decisions) / elapsed), global_step)
+            counts.log(global_step, decisions, iteration)
+            writer.add_scalar("options/primitive_usage", usage[:num_primitives].sum(), global_step)
+            for k in range(num_options):
+                writer.add_scalar(f"options/usage_{k}", usage[num_primitives + k], global_step)
+                chosen = action_counts[num_primitives + k]
+                if chosen:
+                    writer.add_scalar(f"options/length_{k}", option_steps[k] / chosen, global_step)
+
         if logs.due(spent) or spent >= args.total_timesteps:
             mean_ret = f"{np.mean(recent_returns[-20:]):.1f}" if recent_returns else "n/a"
             progress = budget_progress(args.budget_unit, global_step, decisions,

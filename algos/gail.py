@@ -44,6 +44,7 @@ import routine_gym
 from routine_gym.envs.factory import make_env
 from routine_gym.imitation import agent_view_states, demo_pairs
 from routine_gym.networks import ObservationEncoder, layer_init
+from routine_gym.plumbing.counters import scalars_due
 from routine_gym.plumbing.divergence import check_update
 from routine_gym.plumbing.loading import check_demo_env, load_demo
 from routine_gym.plumbing.memory import check_rollout_memory
@@ -127,6 +128,10 @@ class Args:
     resume: str | None = None
     """checkpoint file (or run folder) to resume from; the envs start fresh episodes. The saved
     settings hold (a --total-timesteps other than the default raises the budget to it)"""
+    scalars_every: int = 1
+    """write the per-update TensorBoard scalars (losses, learning rate, discriminator, SPS) every
+    this many updates and at the last one, like SB3's `log_interval` (PPO: 1); episode returns
+    are written at every episode end"""
     log_every: int = 10_000
     """print a progress line every this many primitive steps"""
     run_dir: str = "runs"
@@ -338,16 +343,18 @@ def main(args: Args) -> dict | None:
                 optimizer.step()
 
         sps = int((global_step - start_step) / max(time.time() - start_time, 1e-9))
-        writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
-        writer.add_scalar("losses/value_loss", v_loss.item(), global_step)
-        writer.add_scalar("losses/policy_loss", pg_loss.item(), global_step)
-        writer.add_scalar("losses/entropy", entropy_loss.item(), global_step)
-        writer.add_scalar("losses/approx_kl", approx_kl.item(), global_step)
-        writer.add_scalar("losses/clipfrac", np.mean(clipfracs), global_step)
-        writer.add_scalar("losses/disc_loss", disc_loss.item(), global_step)
-        writer.add_scalar("losses/disc_expert_accuracy", expert_acc.item(), global_step)
-        writer.add_scalar("charts/gail_reward", rewards.mean().item(), global_step)
-        writer.add_scalar("charts/SPS", sps, global_step)
+        if scalars_due(iteration, args.scalars_every, last=iteration == num_iterations):
+            writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"],
+                              global_step)
+            writer.add_scalar("losses/value_loss", v_loss.item(), global_step)
+            writer.add_scalar("losses/policy_loss", pg_loss.item(), global_step)
+            writer.add_scalar("losses/entropy", entropy_loss.item(), global_step)
+            writer.add_scalar("losses/approx_kl", approx_kl.item(), global_step)
+            writer.add_scalar("losses/clipfrac", np.mean(clipfracs), global_step)
+            writer.add_scalar("losses/disc_loss", disc_loss.item(), global_step)
+            writer.add_scalar("losses/disc_expert_accuracy", expert_acc.item(), global_step)
+            writer.add_scalar("charts/gail_reward", rewards.mean().item(), global_step)
+            writer.add_scalar("charts/SPS", sps, global_step)
         if logs.due(global_step) or iteration == num_iterations:
             mean_ret = f"{np.mean(recent_returns[-20:]):.1f}" if recent_returns else "n/a"
             print(f"step {global_step:>10,d}/{args.total_timesteps:,d}  "

@@ -50,7 +50,7 @@ from routine_gym.baselines.option_critic import (
 )
 from routine_gym.envs.factory import make_vector_env
 from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent
+from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent, scalars_due
 from routine_gym.plumbing.divergence import check_update
 from routine_gym.plumbing.memory import check_rollout_memory
 from routine_gym.plumbing.run import Every, eval_env_kwargs, run_script, start_run, train_env_kwargs
@@ -136,6 +136,10 @@ class Args:
     (a --total-timesteps other than the default sets a new budget)"""
     eval_episodes: int = 10
     """episodes to evaluate the final policy on (0 disables); results in eval.json"""
+    scalars_every: int = 100
+    """write the per-update TensorBoard scalars (losses, learning rate, SPS, counters) every this
+    many updates and at the last one, like SB3's `log_interval` (A2C: 100); episode returns are
+    written at every episode end"""
     log_every: int = 10_000
     """print a progress line every this many primitive steps (decisions with --budget-unit
     decisions)"""
@@ -315,14 +319,16 @@ def main(args: Args) -> dict | None:
         optimizer.step()
 
         elapsed = max(time.time() - start_time, 1e-9)
-        writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
-        writer.add_scalar("losses/value_loss", v_loss.item(), global_step)
-        writer.add_scalar("losses/policy_loss", pg_loss.item(), global_step)
-        writer.add_scalar("losses/entropy", entropy_loss.item(), global_step)
-        writer.add_scalar("losses/termination_loss", term_loss.item(), global_step)
-        writer.add_scalar("charts/SPS", int((global_step - start_step) / elapsed), global_step)
-        counts.log(global_step, decisions, iteration)
         spent = budget_spent(args.budget_unit, global_step, decisions)
+        if scalars_due(iteration, args.scalars_every, last=spent >= args.total_timesteps):
+            writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"],
+                              global_step)
+            writer.add_scalar("losses/value_loss", v_loss.item(), global_step)
+            writer.add_scalar("losses/policy_loss", pg_loss.item(), global_step)
+            writer.add_scalar("losses/entropy", entropy_loss.item(), global_step)
+            writer.add_scalar("losses/termination_loss", term_loss.item(), global_step)
+            writer.add_scalar("charts/SPS", int((global_step - start_step) / elapsed), global_step)
+            counts.log(global_step, decisions, iteration)
         if logs.due(spent) or spent >= args.total_timesteps:
             usage = option_counts / max(option_counts.sum(), 1)
             for k in range(args.num_options):

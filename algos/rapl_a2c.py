@@ -54,7 +54,7 @@ from routine_gym.networks import (
     sample_categorical,
 )
 from routine_gym.plumbing.arguments import given_flags
-from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent
+from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent, scalars_due
 from routine_gym.plumbing.divergence import check_update
 from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.loading import load_demo
@@ -223,6 +223,10 @@ class Args:
     """record the best of --demo-episodes episodes of the trained agent to this demo file"""
     demo_episodes: int = 10
     """episodes to pick the best demo from"""
+    scalars_every: int = 100
+    """write the per-update TensorBoard scalars (losses, learning rate, SPS, counters) every this
+    many updates and at the last one, like SB3's `log_interval` (A2C: 100); episode returns are
+    written at every episode end"""
     log_every: int = 10_000
     """print a progress line every this many primitive steps (decisions with --budget-unit
     decisions)"""
@@ -533,23 +537,24 @@ def main(args: Args) -> None:
         optimizer.step()
 
         elapsed = max(time.time() - start_time, 1e-9)
-        writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
-        writer.add_scalar("losses/value_loss", v_loss.item(), global_step)
-        writer.add_scalar("losses/prim_value_loss", prim_loss.item(), global_step)
-        writer.add_scalar("losses/policy_loss", pg_loss.item(), global_step)
-        writer.add_scalar("losses/entropy", entropy_loss.item(), global_step)
-        writer.add_scalar("charts/SPS", int((global_step - start_step) / elapsed), global_step)
-        writer.add_scalar("charts/decisions_per_second",
-                          int((decisions - start_decisions) / elapsed), global_step)
-        counts.log(global_step, decisions, iteration)
-        if num_routines:
-            usage = routine_counts / max(routine_counts.sum(), 1)
-            writer.add_scalar("routines/primitive_usage", usage[:num_primitives].sum(),
-                              global_step)
-            for k in range(num_routines):
-                writer.add_scalar(f"routines/usage_{k}", usage[num_primitives + k], global_step)
-
         spent = budget_spent(args.budget_unit, global_step, decisions)
+        if scalars_due(iteration, args.scalars_every, last=spent >= args.total_timesteps):
+            writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
+            writer.add_scalar("losses/value_loss", v_loss.item(), global_step)
+            writer.add_scalar("losses/prim_value_loss", prim_loss.item(), global_step)
+            writer.add_scalar("losses/policy_loss", pg_loss.item(), global_step)
+            writer.add_scalar("losses/entropy", entropy_loss.item(), global_step)
+            writer.add_scalar("charts/SPS", int((global_step - start_step) / elapsed), global_step)
+            writer.add_scalar("charts/decisions_per_second",
+                              int((decisions - start_decisions) / elapsed), global_step)
+            counts.log(global_step, decisions, iteration)
+            if num_routines:
+                usage = routine_counts / max(routine_counts.sum(), 1)
+                writer.add_scalar("routines/primitive_usage", usage[:num_primitives].sum(),
+                                  global_step)
+                for k in range(num_routines):
+                    writer.add_scalar(f"routines/usage_{k}", usage[num_primitives + k], global_step)
+
         if logs.due(spent) or spent >= args.total_timesteps:
             mean_ret = f"{np.mean(recent_returns[-20:]):.1f}" if recent_returns else "n/a"
             usage = routine_counts[num_primitives:].sum() / max(routine_counts.sum(), 1)

@@ -61,7 +61,7 @@ import routine_gym
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_primitive_env, make_vector_env
 from routine_gym.networks import ObservationEncoder, categorical_policy, layer_init
-from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent
+from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent, scalars_due
 from routine_gym.plumbing.divergence import check_update
 from routine_gym.plumbing.loading import load_demo
 from routine_gym.plumbing.memory import check_rollout_memory
@@ -229,6 +229,10 @@ class Args:
     """record the best of --demo-episodes episodes of the trained agent to this demo file"""
     demo_episodes: int = 10
     """episodes to pick the best demo from"""
+    scalars_every: int = 1
+    """write the per-update TensorBoard scalars (losses, learning rate, SPS, counters) every this
+    many updates and at the last one, like SB3's `log_interval` (PPO: 1); episode returns are
+    written at every episode end"""
     log_every: int = 10_000
     """print a progress line every this many primitive steps (decisions with --budget-unit
     decisions)"""
@@ -579,27 +583,28 @@ def main(args: Args) -> None:
         var_y = np.var(y_true)
         explained_var = np.nan if var_y == 0 else 1 - np.var(y_true - y_pred) / var_y
         elapsed = max(time.time() - start_time, 1e-9)
-        writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
-        writer.add_scalar("losses/value_loss", v_loss.item(), global_step)
-        writer.add_scalar("losses/prim_value_loss", prim_loss.item(), global_step)
-        writer.add_scalar("losses/policy_loss", pg_loss.item(), global_step)
-        writer.add_scalar("losses/entropy", entropy_loss.item(), global_step)
-        writer.add_scalar("losses/old_approx_kl", old_approx_kl.item(), global_step)
-        writer.add_scalar("losses/approx_kl", approx_kl.item(), global_step)
-        writer.add_scalar("losses/clipfrac", np.mean(clipfracs), global_step)
-        writer.add_scalar("losses/explained_variance", explained_var, global_step)
-        writer.add_scalar("charts/SPS", int((global_step - start_step) / elapsed), global_step)
-        writer.add_scalar("charts/decisions_per_second",
-                          int((decisions - start_decisions) / elapsed), global_step)
-        counts.log(global_step, decisions, iteration)
-        if num_routines:
-            usage = routine_counts / max(routine_counts.sum(), 1)
-            writer.add_scalar("routines/primitive_usage", usage[:num_primitives].sum(),
-                              global_step)
-            for k in range(num_routines):
-                writer.add_scalar(f"routines/usage_{k}", usage[num_primitives + k], global_step)
-
         spent = budget_spent(args.budget_unit, global_step, decisions)
+        if scalars_due(iteration, args.scalars_every, last=spent >= args.total_timesteps):
+            writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
+            writer.add_scalar("losses/value_loss", v_loss.item(), global_step)
+            writer.add_scalar("losses/prim_value_loss", prim_loss.item(), global_step)
+            writer.add_scalar("losses/policy_loss", pg_loss.item(), global_step)
+            writer.add_scalar("losses/entropy", entropy_loss.item(), global_step)
+            writer.add_scalar("losses/old_approx_kl", old_approx_kl.item(), global_step)
+            writer.add_scalar("losses/approx_kl", approx_kl.item(), global_step)
+            writer.add_scalar("losses/clipfrac", np.mean(clipfracs), global_step)
+            writer.add_scalar("losses/explained_variance", explained_var, global_step)
+            writer.add_scalar("charts/SPS", int((global_step - start_step) / elapsed), global_step)
+            writer.add_scalar("charts/decisions_per_second",
+                              int((decisions - start_decisions) / elapsed), global_step)
+            counts.log(global_step, decisions, iteration)
+            if num_routines:
+                usage = routine_counts / max(routine_counts.sum(), 1)
+                writer.add_scalar("routines/primitive_usage", usage[:num_primitives].sum(),
+                                  global_step)
+                for k in range(num_routines):
+                    writer.add_scalar(f"routines/usage_{k}", usage[num_primitives + k], global_step)
+
         if logs.due(spent) or spent >= args.total_timesteps:
             mean_ret = f"{np.mean(recent_returns[-20:]):.1f}" if recent_returns else "n/a"
             usage = routine_counts[num_primitives:].sum() / max(routine_counts.sum(), 1)

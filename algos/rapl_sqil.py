@@ -59,6 +59,7 @@ from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_env
 from routine_gym.imitation import agent_view_states, build_demo_transitions, sqil_target
 from routine_gym.networks import ObservationEncoder, layer_init
+from routine_gym.plumbing.counters import scalars_due
 from routine_gym.plumbing.divergence import check_update
 from routine_gym.plumbing.loading import check_demo_env, load_demo
 from routine_gym.plumbing.memory import check_memory
@@ -139,6 +140,9 @@ class Args:
     """save a resumable checkpoint every this many primitive steps (0: never)"""
     resume: str | None = None
     """checkpoint file (or run folder) to resume a killed run from (the replay memory refills)"""
+    scalars_every: int = 100
+    """write the per-update TensorBoard scalars (losses, Q-values, SPS, routine usage) every this
+    many gradient updates; episode returns are written at every episode end"""
     log_every: int = 10_000
     """print a progress line every this many primitive steps"""
     run_dir: str = "runs"
@@ -277,7 +281,7 @@ def main(args: Args) -> dict | None:
                                                q_network.parameters(), strict=True):
                     target_param.data.copy_(args.tau * param.data
                                             + (1.0 - args.tau) * target_param.data)
-            if updates % 100 == 0:
+            if scalars_due(updates, args.scalars_every, last=False):
                 writer.add_scalar("losses/td_loss", loss.item(), global_step)
                 writer.add_scalar("losses/demo_loss", demo_loss.item(), global_step)
                 writer.add_scalar("losses/agent_loss", agent_loss.item(), global_step)

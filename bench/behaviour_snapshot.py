@@ -7,7 +7,8 @@
 `record` trains every script (every mode of `rapl_a2c.py`) for a short, seeded MiniQbert run,
 and `rapl_a2c.py` (every mode) and `option_critic.py` on MinAtar/Breakout-v1 (its batched
 vector env), with one torch thread and keeps every TensorBoard scalar but the wall-clock ones
-(`charts/SPS`), each as its exact float32 bits; then it copies the committed cpu sweep
+(`charts/SPS`), each as its exact float32 bits (`--scalars-every 1` where a script has the
+flag: every update's scalars, as before it); then it copies the committed cpu sweep
 (`bench/results/experiments/cpu`), runs `routine-gym experiment report` on the copy and keeps
 its CSVs. `compare` says, per script and per CSV, whether the two are identical, and exits 1
 when one is not; tags only the second record has (a new counter) are listed, not compared.
@@ -90,8 +91,12 @@ def record(dest: Path) -> None:
         for name, script, flags in RUNS:
             run_dir = Path(tmp) / name
             env = [] if "--env-id" in flags else DEFAULT_ENV
+            # Every update's scalars where a script writes them every --scalars-every updates
+            # (issue 48), so that a record compares with one made before the flag existed.
+            every = ["--scalars-every", "1"] if "scalars_every:" in (
+                REPO / "algos" / f"{script}.py").read_text() else []
             words = [sys.executable, str(REPO / "algos" / f"{script}.py"), *env, *COMMON, *flags,
-                     "--run-dir", str(run_dir)]
+                     *every, "--run-dir", str(run_dir)]
             proc = subprocess.run(words, capture_output=True, text=True)
             if proc.returncode != 0:
                 sys.exit(f"{name} failed: {proc.stderr.strip().splitlines()[-1:]}")

@@ -24,7 +24,7 @@ them out):
 
 - the torch loop (`--torch-loop`, kind ``torch-loop``): the same fit with
   `ROUTINE_GYM_COMPILE_GRU=torch`, so `masked_gru` runs its loops in torch operations, as every
-  fit did before the compiled loops (`routine_gym/_masked_gru.cpp`);
+  fit did before the compiled loops (`routine_gym/_native/_masked_gru.cpp`);
 - the GRUCell loop (`--peer`, kind ``peer``): the recognition GRU as routine-gym had it before
   `routine_gym/baselines/compile/masked_gru.py` (git HEAD~1 of that change):
   `hidden = self.gru(inputs[:, t], hidden) * mask[:, t, None]` over the window, a
@@ -319,10 +319,11 @@ def worker(args) -> None:
         print(f"# peer: {peer_gru}; checked: {check}", flush=True)
         gru = "GRUCell loop"
     else:
+        from routine_gym import _native
         from routine_gym.baselines.compile import masked_gru
 
         probe_tensor = torch.zeros(1)
-        gru = (f"compiled loops ({masked_gru._core.simd()})"
+        gru = (f"compiled loops ({_native.core('masked_gru').simd()})"
                if masked_gru._compiled(*[probe_tensor] * 4) else "torch loop")
 
     seconds: dict[str, float] = {}

@@ -16,10 +16,12 @@ episodes.
 `_induce_python` is the reference implementation: it follows the published algorithm step for
 step, on flat integer arrays instead of one object per symbol. Symbol values are encoded so that
 a rule can never be confused with an action: terminal `a` is stored as `2a`, a reference to rule
-`r` as `2r + 1`, and a rule's guard node as `-1`. The compiled module `routine_gym._sequitur`
-(built from `routine_gym/_sequitur.cpp` by `pip install`) ports it function for function, with
-an explicit stack instead of recursion, and gives the same grammar about 14 times faster (a
-million actions in about 0.4 s instead of 5.5 s); `induce` uses it when it is built. The core
+`r` as `2r + 1`, and a rule's guard node as `-1`. The compiled core `sequitur`
+(`routine_gym/_native/_sequitur.cpp`, built by `pip install` where there is a C++17 compiler)
+ports it function for function, with an explicit stack instead of recursion, and gives the
+same grammar about 14 times faster (a million actions in about 0.4 s instead of 5.5 s); `induce`
+uses it where `routine_gym._native.core("sequitur")` finds it (built, and not turned off by
+`ROUTINE_GYM_NATIVE`). The core
 also expands the rules (`Grammar.expansions`, the miner's candidates) from its flat output, so
 a grammar built by it decodes its rule bodies into Python objects only when they are read.
 
@@ -39,7 +41,6 @@ Example:
 from __future__ import annotations
 
 import sys
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from itertools import pairwise
@@ -48,13 +49,7 @@ from typing import Literal
 
 import numpy as np
 
-try:
-    from routine_gym import _sequitur as _core
-
-    _CORE_ERROR: ImportError | None = None
-except ImportError as error:  # not built (e.g. a source checkout without `pip install`)
-    _core = None
-    _CORE_ERROR = error
+from routine_gym import _native
 
 __all__ = ["Grammar", "RuleRef", "induce"]
 
@@ -283,9 +278,10 @@ def induce(
     Args:
         actions: non-negative integer action ids below 2**30, as one sequence or as a list of
             episodes. No rule spans two episodes.
-        backend: `"c"` runs the compiled core (ImportError if it is not built), `"python"` the
-            pure-Python reference, `"auto"` the compiled core when it is built and otherwise
-            the reference, with a one-time warning. Both give the same grammar.
+        backend: `"c"` runs the compiled core (ImportError where it is not built or is
+            turned off), `"python"` the pure-Python reference, `"auto"` the compiled core where
+            `routine_gym._native.core` finds it and otherwise the reference (with its one-time
+            warning where the core is not built). Both give the same grammar.
 
     Returns:
         The `Grammar`; `grammar.expand()` gives `actions` back.
@@ -302,33 +298,19 @@ def induce(
     return Grammar._from_flat(offsets, codes, max_action, len(episodes), core)
 
 
-_warned_fallback = False
-
-
 def _backend_module(backend: str) -> ModuleType | None:
     """The compiled core for `backend`, or None for the pure-Python reference."""
-    global _warned_fallback
     if backend == "python":
         return None
     if backend == "c":
-        if _core is None:
-            raise ImportError(
-                "backend='c' needs the compiled module routine_gym._sequitur, which failed to "
-                f"import ({_CORE_ERROR}); build it with `pip install -e .` (needs a C++17 "
-                "compiler) or use backend='python'"
-            ) from _CORE_ERROR
-        return _core
+        reason = _native.unavailable("sequitur")
+        if reason is not None:
+            raise ImportError(f"backend='c' needs the compiled core 'sequitur': {reason}; use "
+                              "backend='python'")
+        return _native.core("sequitur")
     if backend != "auto":
         raise ValueError(f"backend must be 'auto', 'c' or 'python', got {backend!r}")
-    if _core is None and not _warned_fallback:
-        _warned_fallback = True
-        warnings.warn(
-            f"routine_gym._sequitur is not available ({_CORE_ERROR}); falling back to the "
-            "pure-Python Sequitur, about 14x slower. Build it with `pip install -e .`.",
-            RuntimeWarning,
-            stacklevel=3,
-        )
-    return _core
+    return _native.core("sequitur")
 
 
 def _encode(episodes: list[np.ndarray]) -> tuple[np.ndarray, int]:

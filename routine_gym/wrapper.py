@@ -26,19 +26,13 @@ from routine_gym.macro_info import (
     write_routine_info,
 )
 
-try:  # the compiled step (`_wrapper_core.cpp`); without it every step runs `step` below
-    from routine_gym._wrapper_core import Stepper as _Stepper
-except ImportError:  # not built (an optional extension), or built against another numpy
-    _Stepper = None
-
 __all__ = ["RoutineActionWrapper", "merge_final"]
 
 #: Steps served by one allocation of the `routine_*` info arrays (see `_new_info_blocks`).
 _BLOCK_ROWS = 256
-# What `_new_buffers` makes: views of per-instance scratch memory, and the compiled step (bound
-# to this instance's env), left out of a copy.
+# What `_new_buffers` makes: views of per-instance scratch memory, left out of a copy.
 _BUFFERS = ("_sequence_buffers", "_rows", "_actions_out", "_rewards_out", "_terminated_out",
-            "_truncated_out", "_stepper", "step")
+            "_truncated_out")
 # Observation spaces whose samples are numpy arrays (or integers) of a fixed shape and dtype.
 _ARRAY_SPACES = (spaces.Box, spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary)
 
@@ -71,13 +65,6 @@ class RoutineActionWrapper(
 
     Recording observations copies one observation per primitive step, plus padding; pass
     `record_observations=False` when the learner does not need the intermediate states.
-
-    Where the compiled core is built (`routine_gym._wrapper_core`, built by `pip install`), an
-    instance's `step` is its compiled twin: the same loop, values and errors, a few times
-    faster, and it reuses a step's info arrays once nobody holds them any more (a consumer that
-    keeps an array never sees it change). A subclass that overrides `step`, and a
-    `record_observations=True` wrapper of a Dict or Tuple observation space, run the Python
-    method; so does everything without the compiled core.
 
     Example:
         >>> import gymnasium as gym
@@ -182,35 +169,11 @@ class RoutineActionWrapper(
 
     def _new_buffers(self) -> None:
         """The memoryviews `step` writes through: each action's primitives, copied into the
-        info row of a routine's step, and the first info blocks (`_new_info_blocks`); and the
-        compiled step where it can serve this instance (the class docstring)."""
+        info row of a routine's step, and the first info blocks (`_new_info_blocks`)."""
         self._sequence_buffers = [
             memoryview(row) for row in padded_actions(self._sequences, self.max_routine_length)
         ]
-        self._stepper = None
-        compiled = (_Stepper is not None and type(self).step is RoutineActionWrapper.step
-                    and (self._array_observations or not self.record_observations))
-        if not compiled:
-            self._new_info_blocks()
-        else:
-            # The Python step's info blocks only if it is ever called (`RoutineActionWrapper.
-            # step(wrapper, a)`): its first call finds no row and makes them.
-            self._rows = iter(())
-            record = self.record_observations
-            obs_space = self.env.observation_space
-            self._stepper = _Stepper(
-                self.env, self._sequences, self.num_primitive_actions, self.max_routine_length,
-                self.action_space, obs_space.shape if record else None,
-                obs_space.dtype if record else None)
-            # An instance attribute: `wrapper.step(a)` calls the core with no Python frame
-            # between (~40 ns, a fifth of the overhead of a one-step call).
-            self.step = self._stepper.step
-
-    def __setattr__(self, name: str, value: Any) -> None:
-        """Set an attribute; a new inner `env` gets a compiled step of its own."""
-        super().__setattr__(name, value)
-        if name == "env" and self.__dict__.get("_stepper") is not None:
-            self._new_buffers()
+        self._new_info_blocks()
 
     def __getstate__(self) -> dict[str, Any]:
         """The state `copy` and `pickle` save: all but the memoryviews (which neither can

@@ -43,7 +43,7 @@ NO_MEMORY_OR_THREADS: dict[str, str] = {
     **dict.fromkeys(["total_timesteps", "gradient_steps", "update_epochs", "prim_epochs",
                      "disc_epochs", "compile_iterations", "compile_option_steps",
                      "learning_starts"], _TIME),
-    **dict.fromkeys(["log_every", "checkpoint_every", "train_frequency",
+    **dict.fromkeys(["log_every", "scalars_every", "checkpoint_every", "train_frequency",
                      "target_network_frequency"], "how often something is done"),
     "eval_max_steps": "a cap on an episode's steps: the memory follows the episode's real length",
     "alpha": "the miner's minimum count of a routine: a larger one finds fewer",

@@ -6,6 +6,7 @@ each env family."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -28,8 +29,11 @@ FAMILIES = {
 
 
 def user(*words: str | Path, cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess:
-    """Run a command as a user's shell would: PATH with the venv's bin first, HOME, nothing else."""
+    """Run a command as a user's shell would: PATH with the venv's bin first, HOME, nothing else
+    (but `ROUTINE_GYM_NATIVE` where the suite runs with it: the cores-off leg of .ci/run)."""
     env = {"PATH": f"{BIN}:/usr/bin:/bin", "HOME": str(cwd), "LANG": "C.UTF-8"}
+    if "ROUTINE_GYM_NATIVE" in os.environ:
+        env["ROUTINE_GYM_NATIVE"] = os.environ["ROUTINE_GYM_NATIVE"]
     words = [str(w) for w in words]
     if words[0] in ("routine-gym", "python"):
         words[0] = str(BIN / words[0])

@@ -54,9 +54,10 @@ def scripts():
 
 
 def run(module, run_dir: Path, **kwargs) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """`main(Args(...))`, 2 envs × 5 decisions per update; the run's TensorBoard scalars."""
+    """`main(Args(...))`, 2 envs × 5 decisions per update, the scalars of every update; the
+    run's TensorBoard scalars."""
     settings = dict(num_envs=2, num_steps=5, total_timesteps=50, eval_episodes=0,
-                    log_every=10**9, run_dir=str(run_dir), torch_threads=1)
+                    log_every=10**9, run_dir=str(run_dir), torch_threads=1, scalars_every=1)
     settings.update(kwargs)
     before = set(run_dir.iterdir()) if run_dir.exists() else set()
     module.main(module.Args(**settings))
@@ -69,6 +70,28 @@ def values(scalars, tag) -> list[float]:
 
 
 # -- counters ------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("name", ["rapl_a2c", "option_critic", "compile_a2c"])
+def test_scalars_every_writes_every_nth_update_and_the_last(scripts, tmp_path, name):
+    """--scalars-every 2 over 5 updates of 10 decisions (Option-Critic: of 10 primitive steps):
+    updates 2, 4 and 5 (the last) write their scalars, and the counters' window spans the
+    decisions since the previous write (20, 20, then 10)."""
+    if name == "option_critic":  # its decisions are option choices: a budget of steps
+        s = run(scripts[name], tmp_path, env_id="MinAtar/Breakout-v1", scalars_every=2)
+        assert values(s, "counters/updates") == [2, 4, 5]
+        assert s["counters/updates"][0].tolist() == [20, 40, 50]
+        assert len(values(s, "losses/termination_loss")) == 3
+        return
+    extra = {"compile_iterations": 5, "compile_batch_size": 4} if name == "compile_a2c" else {}
+    s = run(scripts[name], tmp_path, env_id="MiniQbert-v0", budget_unit="decisions",
+            scalars_every=2, **extra)
+    assert values(s, "counters/updates") == [2, 4, 5]
+    assert values(s, "counters/decisions") == [20, 40, 50]
+    assert len(values(s, "losses/value_loss")) == 3
+    steps = s["counters/decisions"][0]
+    np.testing.assert_allclose(values(s, "counters/steps_per_decision"),
+                               np.diff(np.concatenate([[0], steps])) / [20, 20, 10], rtol=1e-6)
+
 
 def test_a2c_counts_one_decision_per_step_and_an_update_per_ten(scripts, tmp_path):
     s = run(scripts["rapl_a2c"], tmp_path, env_id="MinAtar/Breakout-v1", mode="a2c")

@@ -24,10 +24,9 @@ SHIPPED_ENV_IDS = (*DEMO_SUITE, "MiniQbert-v0")
 USER_API = ("RoutineActionWrapper", "SequiturMiner", "DemoRecorder", "RoutineLibrary", "Demo")
 
 
-@pytest.fixture(scope="module")
-def installed(repo_root, tmp_path_factory) -> dict[str, Path]:
-    """Build a wheel from a clean copy of the repository and install it into a folder."""
-    root = tmp_path_factory.mktemp("install")
+def _install(repo_root: Path, root: Path, env: dict[str, str] | None = None) -> dict:
+    """Build a wheel from a clean copy of the repository (under `env`) and install it into a
+    folder: the folder, a cwd elsewhere, and the build's output."""
     # A clean checkout: nothing from an earlier build (`build/lib` keeps every file it ever
     # held) can stand in for a file the package data misses.
     src = root / "src"
@@ -35,15 +34,24 @@ def installed(repo_root, tmp_path_factory) -> dict[str, Path]:
         ".git", ".venv", "build", "dist", "runs", "logs", "*.egg-info", "__pycache__", "*.so",
         ".*cache", ".hypothesis"))
     pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "--no-input"]
-    subprocess.run([*pip, "wheel", "--no-deps", "--no-build-isolation", "-q", "-w",
-                    str(root / "wheel"), str(src)], check=True, timeout=600)
+    # -v: pip shows the build's own lines (which cores it skipped) only when verbose.
+    build = subprocess.run([*pip, "wheel", "--no-deps", "--no-build-isolation", "-v", "-w",
+                            str(root / "wheel"), str(src)], capture_output=True, text=True,
+                           timeout=600, env=env)
+    assert build.returncode == 0, build.stdout[-3000:] + build.stderr[-3000:]
     (wheel,) = (root / "wheel").glob("routine_gym-*.whl")
     site = root / "site"
     subprocess.run([*pip, "install", "--no-deps", "--no-compile", "-q", "--target", str(site),
                     str(wheel)], check=True, timeout=600)
     elsewhere = root / "elsewhere"  # the cwd: neither the repository nor the source copy
     elsewhere.mkdir()
-    return {"site": site, "cwd": elsewhere}
+    return {"site": site, "cwd": elsewhere, "build": build.stdout + build.stderr}
+
+
+@pytest.fixture(scope="module")
+def installed(repo_root, tmp_path_factory) -> dict[str, Path]:
+    """Build a wheel from a clean copy of the repository and install it into a folder."""
+    return _install(repo_root, tmp_path_factory.mktemp("install"))
 
 
 def _run(installed: dict[str, Path], *cmd: str) -> subprocess.CompletedProcess[str]:
@@ -133,21 +141,59 @@ def test_installed_experiment_runs_the_scripts_shipped_in_the_package(installed,
         scripts.append(script)
     assert sorted(scripts) == ["rapl_a2c"] * 2 + ["rapl_ppo"] * 3
 
-def test_installed_package_carries_the_compiled_cores(installed):
-    """The wheel's extensions load from the install, and the wrapper steps through its core."""
-    out = _python(installed, (
-        "import json, importlib\n"
-        "import gymnasium as gym\n"
-        "from routine_gym import RoutineActionWrapper\n"
-        "names = ['_sequitur', '_minatar_core', '_records', '_masked_gru', '_wrapper_core']\n"
-        "files = {n: importlib.import_module('routine_gym.' + n).__file__ for n in names}\n"
-        "env = RoutineActionWrapper(gym.make('CartPole-v1'), [[0, 1]])\n"
-        "env.reset(seed=0)\n"
-        "info = env.step(2)[4]\n"
-        "print(json.dumps({'files': files, 'core': type(env.step.__self__).__name__,\n"
-        "    'actions': info['routine_actions'].tolist()}))"
+
+def test_without_a_compiler_the_install_skips_every_core_and_the_twins_run(repo_root, tmp_path):
+    """`CC=false CXX=false`: no C++ compiler. The wheel builds, the build names the cores it
+    skipped, and the installed package mines, steps MinAtar and fits CompILE's GRU in Python,
+    with one warning per core it wanted."""
+    env = {**os.environ, "CC": "false", "CXX": "false"}
+    install = _install(repo_root, tmp_path, env)
+    assert ("routine-gym: skipped the compiled cores sequitur, minatar_core, masked_gru; their "
+            "Python twins run instead") in install["build"]
+    out = _python(install, (
+        "import json, os, warnings\n"
+        "os.environ.pop('ROUTINE_GYM_NATIVE', None)  # the cores wanted: none there\n"
+        "warnings.simplefilter('always')\n"
+        "import numpy as np, torch\n"
+        "from routine_gym import _native\n"
+        "from routine_gym.sequitur import induce\n"
+        "from routine_gym.envs.minatar_vector import MinAtarVectorEnv\n"
+        "from routine_gym.baselines.compile.masked_gru import masked_gru\n"
+        "with warnings.catch_warnings(record=True) as caught:\n"
+        "    rules = induce([0, 1, 0, 1]).rules\n"
+        "    envs = MinAtarVectorEnv('MinAtar/Breakout-v1', 2)\n"
+        "    envs.reset(seed=0)\n"
+        "    shape = envs.step(np.array([0, 1]))[0].shape\n"
+        "    gru = masked_gru(torch.zeros(1, 2, 6, requires_grad=True), torch.ones(1, 2),\n"
+        "                     torch.zeros(6, 2), torch.zeros(6)).grad_fn.name()\n"
+        "print(json.dumps({'cores': [_native.core(n) for n in _native.CORES],\n"
+        "    'rules': str(rules), 'compiled': envs.compiled, 'shape': list(shape), 'gru': gru,\n"
+        "    'warnings': sorted(str(w.message).split(' (')[0] for w in caught)}))"
     ))
+    assert out["cores"] == [None, None, None]
+    assert out["rules"] == "[(R1, R1), (0, 1)]"
+    assert not out["compiled"] and out["shape"] == [2, 4, 10, 10]
+    assert out["gru"].startswith("_TorchMaskedGRU")
+    assert out["warnings"] == [f"the compiled core '{name}' is not built"
+                               for name in ("masked_gru", "minatar_core", "sequitur")]
+
+
+def test_installed_package_carries_the_compiled_cores(installed):
+    """The wheel carries each core this machine's compiler builds, and it loads from the
+    install (whatever `ROUTINE_GYM_NATIVE` says: it is the files that are checked)."""
+    import importlib.util
+
+    from routine_gym import _native
+
+    if any(importlib.util.find_spec(f"routine_gym._native._{n}") is None for n in _native.CORES):
+        pytest.skip("this checkout's own install has no compiled cores (no C++17 compiler)")
+    out = _python(installed, (
+        "import json, importlib.util\n"
+        "from routine_gym import _native\n"
+        "files = {n: importlib.util.find_spec(f'routine_gym._native._{n}').origin\n"
+        "         for n in _native.CORES}\n"
+        "print(json.dumps({'files': files}))"
+    ))
+    assert sorted(out["files"]) == ["masked_gru", "minatar_core", "sequitur"]
     for name, file in out["files"].items():
-        assert Path(file).is_relative_to(installed["site"]), name
-    assert out["core"] == "Stepper"
-    assert out["actions"] == [0, 1]
+        assert Path(file).is_relative_to(installed["site"]) and file.endswith(".so"), name

@@ -74,14 +74,19 @@ def test_the_elbo_decoder_pass_is_policy_logits_of_every_step_and_segment():
                                rtol=1e-12, atol=1e-12)
 
 
-# -- the compiled loops (routine_gym/_masked_gru.cpp) against the torch loop ---------------------
+# -- the compiled loops (routine_gym/_native/_masked_gru.cpp) against the torch loop --------------
 
 import contextlib  # noqa: E402
 
 import pytest  # noqa: E402
 
 import routine_gym.baselines.compile.masked_gru as masked_gru_module  # noqa: E402
-from routine_gym import _masked_gru as core  # noqa: E402
+from routine_gym import _native  # noqa: E402
+
+core = _native.core("masked_gru")
+# Not built, or ROUTINE_GYM_NATIVE turns it off: the torch loop's tests above still run.
+needs_core = pytest.mark.skipif(core is None,
+                                reason=f"masked_gru: {_native.unavailable('masked_gru')}")
 
 BUILDS = ["best", "portable"]
 
@@ -127,6 +132,7 @@ def _run(function, inputs, upstream):
     return [out.detach().clone(), *(x.grad.clone() for x in inputs)]
 
 
+@needs_core
 @pytest.mark.parametrize("build", BUILDS)
 @pytest.mark.parametrize(("b", "t", "h"), [(16, 33, 128), (1, 1, 1), (5, 7, 3), (7, 4, 20),
                                            (3, 9, 17)])
@@ -142,6 +148,7 @@ def test_compiled_loops_equal_the_torch_loop_in_float64(build, b, t, h):
         torch.testing.assert_close(got, expected, rtol=1e-12, atol=1e-13, msg=name)
 
 
+@needs_core
 @pytest.mark.parametrize("build", BUILDS)
 @pytest.mark.parametrize("scale", [1.0, 30.0])
 def test_compiled_loops_equal_the_torch_loop_in_float32(build, scale):
@@ -156,6 +163,7 @@ def test_compiled_loops_equal_the_torch_loop_in_float32(build, scale):
         torch.testing.assert_close(got, expected, rtol=2e-5, atol=2e-5, msg=name)
 
 
+@needs_core
 def test_sigmoid_and_tanh_of_the_float32_loop_are_within_a_few_ulp():
     """One step from h = 0 with W_hh = 0 and b_hh = 0: r, z = σ(gi), n = tanh(gi_n), over a
     sweep of gate values from −100 to 100 (both branches of tanh, the clamp of exp)."""
@@ -178,6 +186,7 @@ def test_sigmoid_and_tanh_of_the_float32_loop_are_within_a_few_ulp():
         assert rz[0, 0, h - 1].item() == 1.0  # σ(88.5)
 
 
+@needs_core
 @pytest.mark.parametrize("build", BUILDS)
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_a_rows_numbers_do_not_depend_on_the_thread_count(build, dtype):
@@ -194,6 +203,7 @@ def test_a_rows_numbers_do_not_depend_on_the_thread_count(build, dtype):
         torch.testing.assert_close(other[3], results[0][3], rtol=1e-5, atol=1e-5)
 
 
+@needs_core
 @pytest.mark.parametrize("build", BUILDS)
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_nan_and_infinite_gates_come_out_as_in_the_torch_loop(build, dtype):
@@ -219,6 +229,7 @@ def test_nan_and_infinite_gates_come_out_as_in_the_torch_loop(build, dtype):
             torch.testing.assert_close(got[finite], expected[finite], rtol=1e-5, atol=1e-5)
 
 
+@needs_core
 def test_double_backward_is_refused_not_silently_wrong():
     inputs, upstream = _inputs(2, 3, 4, torch.float64, seed=2)
     for function in (masked_gru_module._CompiledMaskedGRU, masked_gru_module._TorchMaskedGRU):
@@ -245,20 +256,22 @@ def test_parameters_without_gradients_get_none():
     assert weight.grad is None and bias.grad is None
 
 
-def test_the_torch_loop_where_the_module_is_missing(monkeypatch):
+def test_the_torch_loop_where_the_core_is_off(monkeypatch):
     inputs, upstream = _inputs(3, 4, 5, torch.float64, seed=6)
     reference = _run(masked_gru_module._TorchMaskedGRU, inputs, upstream)
-    monkeypatch.setattr(masked_gru_module, "_core", None)
+    monkeypatch.setenv("ROUTINE_GYM_NATIVE", "sequitur")  # every core but this one
     out = masked_gru(*inputs)
     assert out.grad_fn.name().startswith("_TorchMaskedGRU")
     torch.testing.assert_close(out.detach(), reference[0], rtol=0, atol=0)
     monkeypatch.setenv("ROUTINE_GYM_COMPILE_GRU", "compiled")
-    with pytest.raises(ValueError, match="^ROUTINE_GYM_COMPILE_GRU=compiled: routine_gym._masked"):
+    with pytest.raises(ValueError, match="^ROUTINE_GYM_COMPILE_GRU=compiled: the compiled core "
+                                         "'masked_gru' is not there"):
         masked_gru(*inputs)
     monkeypatch.setenv("ROUTINE_GYM_COMPILE_GRU", "")  # empty: the default, the torch loop here
     assert masked_gru(*inputs).grad_fn.name().startswith("_TorchMaskedGRU")
 
 
+@needs_core
 def test_gcc_builds_on_an_avx2_cpu_run_the_avx2_loops():
     """The `#pragma GCC target` build and the CPU check: where both hold, the AVX2 loops run."""
     import platform
@@ -277,6 +290,7 @@ def test_gcc_builds_on_an_avx2_cpu_run_the_avx2_loops():
     assert core.simd() == "avx2"
 
 
+@needs_core
 def test_masked_gru_takes_the_compiled_loops_on_cpu_and_non_contiguous_inputs():
     inputs, upstream = _inputs(4, 6, 8, torch.float64, seed=9)
     gates, mask, weight, bias = inputs
@@ -301,6 +315,7 @@ def test_other_dtypes_take_the_torch_loop():
     assert not masked_gru_module._compiled(*mixed)
 
 
+@needs_core
 def test_the_compiled_entry_points_refuse_wrong_buffers_in_one_line():
     (gates, mask, weight, bias), _ = _inputs(2, 3, 4, torch.float32, seed=1)
     hs, rz, n, ghn = torch.empty(2, 4, 4), torch.empty(2, 3, 8), torch.empty(2, 3, 4), \
@@ -321,6 +336,7 @@ def test_the_compiled_entry_points_refuse_wrong_buffers_in_one_line():
     assert core.simd() in ("avx2", "portable")
 
 
+@needs_core
 def test_the_environment_variable_selects_the_torch_loop(monkeypatch):
     inputs, _ = _inputs(2, 3, 4, torch.float32, seed=1)
     assert masked_gru(*inputs).grad_fn.name().startswith("_CompiledMaskedGRU")

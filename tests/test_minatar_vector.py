@@ -10,11 +10,18 @@ import numpy as np
 import pytest
 
 import routine_gym  # noqa: F401  (registers the MinAtar ids)
+from routine_gym import _native
 from routine_gym.envs.factory import make_vector_env
 from routine_gym.envs.minatar_vector import MinAtarVectorEnv, _core_row
 
 COMPILED_IDS = ("MinAtar/Breakout-v1", "MinAtar/SpaceInvaders-v1", "MinAtar/Freeway-v1",
                 "MinAtar/Asterix-v1", "MinAtar/Seaquest-v1")  # all five
+
+#: Whether the compiled core runs here (built, on, and MinAtar the version it ports); without it
+#: the Python loop's tests run and the core's skip.
+HAS_CORE = _native.core("minatar_core") is not None
+needs_core = pytest.mark.skipif(not HAS_CORE,
+                                reason=f"minatar_core: {_native.unavailable('minatar_core')}")
 
 
 def _flat(info: dict, prefix: str = "") -> dict:
@@ -29,6 +36,8 @@ def _flat(info: dict, prefix: str = "") -> dict:
 
 def _assert_same_steps(env_id, routines, record, env_kwargs, steps, num_envs=6, seed=3,
                        compiled=None):
+    if compiled and not HAS_CORE:
+        pytest.skip("the compiled core 'minatar_core' is not there")
     if compiled is None:  # what the scripts get: the factory's choice
         batched = make_vector_env(env_id, num_envs, routines=routines,
                                   record_observations=record, env_kwargs=env_kwargs)
@@ -39,8 +48,8 @@ def _assert_same_steps(env_id, routines, record, env_kwargs, steps, num_envs=6, 
     python = make_vector_env(env_id, num_envs, routines=routines, record_observations=record,
                              env_kwargs=env_kwargs, batched=False)
     assert isinstance(batched, MinAtarVectorEnv)
-    # Every game runs in the compiled core unless told otherwise.
-    assert batched.compiled == (compiled is not False and env_id in COMPILED_IDS)
+    # Every game runs in the compiled core, where there is one, unless told otherwise.
+    assert batched.compiled == (compiled is not False and HAS_CORE and env_id in COMPILED_IDS)
     assert isinstance(python, gym.vector.SyncVectorEnv)
     assert batched.single_observation_space == python.single_observation_space
     assert batched.single_action_space == python.single_action_space
@@ -119,6 +128,7 @@ def test_breakout_compiled_or_not_returns_what_the_python_path_returns(routines,
      {"sticky_action_prob": 0.5, "max_episode_steps": 30}, 300),
     ("MinAtar/Seaquest-v1", None, False, {"difficulty_ramping": False}, 1500),
 ])
+@needs_core
 def test_the_other_compiled_games_return_what_the_python_path_returns(env_id, routines, record,
                                                                      env_kwargs, steps):
     ends, truncations = _assert_same_steps(env_id, routines, record, env_kwargs, steps,
@@ -162,6 +172,7 @@ def _draw_state(rng):
             "brick_map": bricks, "last_action": int(rng.choice([0, 1, 3]))}
 
 
+@needs_core
 @pytest.mark.parametrize("sticky", [0.0, 0.3])
 def test_the_compiled_core_steps_any_breakout_state_as_minatar_does(sticky):
     # From states drawn anywhere (walls, corners, bricks above, beside and below the ball, a
@@ -254,6 +265,7 @@ def _draw_invaders_state(rng):
             "last_action": int(rng.choice([0, 1, 3, 5]))}
 
 
+@needs_core
 @pytest.mark.parametrize("sticky,ramping", [(0.0, True), (0.3, True), (0.1, False)])
 def test_the_compiled_core_steps_any_space_invaders_state_as_minatar_does(sticky, ramping):
     # From states drawn anywhere (aliens at the walls and in the cannon's row, a march or a
@@ -273,6 +285,7 @@ def test_the_compiled_core_steps_any_space_invaders_state_as_minatar_does(sticky
     assert (ramps > 10) == ramping
 
 
+@needs_core
 def test_the_compiled_core_refuses_a_space_invaders_shot_with_no_alien():
     # MinAtar's own `act` raises TypeError from such a state; the core says what happened.
     envs = MinAtarVectorEnv("MinAtar/SpaceInvaders-v1", 1,
@@ -296,6 +309,7 @@ def _draw_freeway_state(rng):
             "cars": cars, "last_action": int(rng.choice([0, 2, 4]))}
 
 
+@needs_core
 @pytest.mark.parametrize("sticky", [0.0, 0.3])
 def test_the_compiled_core_steps_any_freeway_state_as_minatar_does(sticky):
     # From states drawn anywhere (a crossing that redraws the cars from the game's generator,
@@ -334,6 +348,7 @@ def _draw_asterix_state(rng):
             "last_action": int(rng.choice([0, 1, 2, 3, 4]))}
 
 
+@needs_core
 @pytest.mark.parametrize("sticky,ramping", [(0.0, True), (0.3, True), (0.1, False)])
 def test_the_compiled_core_steps_any_asterix_state_as_minatar_does(sticky, ramping):
     # From states drawn anywhere (gold taken and enemies met before and after the entities
@@ -406,6 +421,7 @@ def _seaquest_values(row):
     return row
 
 
+@needs_core
 @pytest.mark.parametrize("sticky,ramping", [(0.0, True), (0.3, True), (0.1, False)])
 def test_the_compiled_core_steps_any_seaquest_state_as_minatar_does(sticky, ramping):
     # From states drawn anywhere, one step of each action against MinAtar's own `act` and
@@ -428,6 +444,7 @@ def test_the_compiled_core_steps_any_seaquest_state_as_minatar_does(sticky, ramp
     assert (ramps > 10) == ramping
 
 
+@needs_core
 def test_the_compiled_core_shares_each_games_random_stream_with_python():
     # The sticky draws and the reset's coin come from the game's own RandomState: after the
     # same steps, the compiled games' generators are where the Python games' are.
@@ -451,15 +468,51 @@ def test_compiled_true_is_refused_where_there_is_no_core(monkeypatch):
     assert not MinAtarVectorEnv("MinAtar/Seaquest-v1", 2).compiled
 
 
-def test_without_the_built_core_compiled_true_is_refused_and_none_steps_in_python(monkeypatch):
-    import routine_gym.envs.minatar_vector as minatar_vector
-
-    monkeypatch.setattr(minatar_vector, "_minatar_core", None)
-    with pytest.raises(ImportError, match="needs routine_gym._minatar_core, which is not built"):
+def test_without_the_core_compiled_true_is_refused_and_none_steps_in_python(monkeypatch):
+    monkeypatch.setenv("ROUTINE_GYM_NATIVE", "sequitur,masked_gru")  # every core but this one
+    with pytest.raises(ImportError, match="needs the compiled core 'minatar_core': "
+                                          "ROUTINE_GYM_NATIVE=sequitur,masked_gru turns it off"):
         MinAtarVectorEnv("MinAtar/Asterix-v1", 2, compiled=True)
     envs = MinAtarVectorEnv("MinAtar/Asterix-v1", 2)
     envs.reset(seed=0)
     assert not envs.compiled and envs.step(np.array([0, 1]))[0].shape == (2, 4, 10, 10)
+
+
+def test_another_minatar_version_takes_the_python_games_with_one_warning(monkeypatch):
+    """The core ports MinAtar 1.0.15's games: on any other installed version (faked here) it
+    steps aside, with one warning naming both versions, and the games run in MinAtar's
+    Python, stepping as the Python path does."""
+    import importlib.util
+
+    assert _native.MINATAR_VERSION == "1.0.15"
+    if importlib.util.find_spec("routine_gym._native._minatar_core") is None:
+        pytest.skip("the compiled core 'minatar_core' is not built")
+    monkeypatch.setenv("ROUTINE_GYM_NATIVE", "minatar_core")  # on, whatever the run's setting
+    monkeypatch.setattr(_native, "_loaded", {})  # loaded afresh, so the version is checked
+    monkeypatch.setattr(_native, "_warned", set())
+    monkeypatch.setattr(_native, "installed_version",
+                        lambda name: "1.0.16" if name == "minatar" else None)
+    with pytest.warns(RuntimeWarning, match=r"ports minatar 1\.0\.15, but minatar 1\.0\.16 is "
+                                            r"installed; its Python twin runs") as caught:
+        envs = MinAtarVectorEnv("MinAtar/Breakout-v1", 3, env_kwargs={"sticky_action_prob": 0})
+        again = MinAtarVectorEnv("MinAtar/Breakout-v1", 3, env_kwargs={"sticky_action_prob": 0})
+    assert len([w for w in caught if "ports minatar" in str(w.message)]) == 1  # one warning
+    assert not envs.compiled and not again.compiled
+    with pytest.raises(ImportError, match="minatar 1.0.16 is installed"):
+        MinAtarVectorEnv("MinAtar/Breakout-v1", 2, compiled=True)
+    python = make_vector_env("MinAtar/Breakout-v1", 3, env_kwargs={"sticky_action_prob": 0},
+                             batched=False)
+    for vector in (envs, python):
+        vector.reset(seed=5)
+    for _ in range(40):
+        actions = np.array([1, 2, 0])
+        got, expected = envs.step(actions), python.step(actions)
+        np.testing.assert_array_equal(got[0], expected[0])
+        np.testing.assert_array_equal(got[1], expected[1])
+    # The version it ports: the core is taken.
+    monkeypatch.setattr(_native, "_loaded", {})
+    monkeypatch.setattr(_native, "installed_version", lambda name: "1.0.15")
+    assert MinAtarVectorEnv("MinAtar/Breakout-v1", 2).compiled
 
 
 def test_a_routine_cut_by_the_time_limit_counts_its_executed_steps():
@@ -505,6 +558,7 @@ def test_bad_input_gets_a_one_line_error():
         MinAtarVectorEnv("CartPole-v1", 2)
 
 
+@needs_core
 def test_a_copy_of_the_compiled_env_draws_from_its_own_games_generators():
     # The core reaches each game's RandomState by address: a copy (deepcopy, pickle) must use
     # its own games' generators, so the copy and the original go on identically and apart.
@@ -526,6 +580,7 @@ def test_a_copy_of_the_compiled_env_draws_from_its_own_games_generators():
                 assert np.array_equal(a, b)
 
 
+@needs_core
 def test_the_compiled_env_steps_before_any_reset_as_the_python_loop_does():
     compiled, python = (MinAtarVectorEnv("MinAtar/Breakout-v1", 2, compiled=c)
                         for c in (True, False))
@@ -541,6 +596,7 @@ def test_the_compiled_env_steps_before_any_reset_as_the_python_loop_does():
 
 @pytest.mark.parametrize("field,value", [("ball_y", 10), ("ball_x", -1), ("pos", 12),
                                          ("ball_dir", 4), ("last_action", 9)])
+@needs_core
 def test_the_compiled_core_refuses_a_state_off_the_board(field, value):
     envs = MinAtarVectorEnv("MinAtar/Breakout-v1", 2, compiled=True)
     envs.reset(seed=0)
@@ -550,6 +606,7 @@ def test_the_compiled_core_refuses_a_state_off_the_board(field, value):
         envs.step(np.array([0, 0]))
 
 
+@needs_core
 def test_the_compiled_core_refuses_a_ball_falling_out_of_the_board():
     # MinAtar's own `act` raises IndexError from such a state; the core says what happened.
     envs = MinAtarVectorEnv("MinAtar/Breakout-v1", 1, env_kwargs={"sticky_action_prob": 0.0},

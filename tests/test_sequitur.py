@@ -32,7 +32,7 @@ BACKENDS = [
     pytest.param(
         "c",
         marks=pytest.mark.skipif(
-            not _backend_available("c"), reason="routine_gym._sequitur is not built"
+            not _backend_available("c"), reason="the compiled core 'sequitur' is not there"
         ),
     ),
 ]

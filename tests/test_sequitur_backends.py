@@ -6,10 +6,12 @@ import warnings
 import numpy as np
 import pytest
 
-from routine_gym import sequitur
+from routine_gym import _native
 from routine_gym.sequitur import Grammar, RuleRef, induce
 
-core = pytest.importorskip("routine_gym._sequitur")
+core = _native.core("sequitur")
+if core is None:  # not built, or ROUTINE_GYM_NATIVE turns it off: the Python twin alone
+    pytest.skip(f"sequitur: {_native.unavailable('sequitur')}", allow_module_level=True)
 
 R1, R2 = RuleRef(1), RuleRef(2)
 
@@ -215,10 +217,14 @@ def test_auto_backend_uses_the_compiled_core_without_warning():
         assert induce([0, 1, 0, 1], backend="auto").rules == [(R1, R1), (0, 1)]
 
 
+def _not_built(monkeypatch) -> None:
+    """The loader as it is where the core was not built (its import failed)."""
+    monkeypatch.setattr(_native, "_loaded", {"sequitur": "no module named _sequitur"})
+    monkeypatch.setattr(_native, "_warned", set())
+
+
 def test_auto_backend_falls_back_to_python_and_warns_once(monkeypatch):
-    monkeypatch.setattr(sequitur, "_core", None)
-    monkeypatch.setattr(sequitur, "_CORE_ERROR", ImportError("no module named _sequitur"))
-    monkeypatch.setattr(sequitur, "_warned_fallback", False)
+    _not_built(monkeypatch)
     with pytest.warns(RuntimeWarning, match="no module named _sequitur"):
         assert induce([0, 1, 0, 1]).rules == [(R1, R1), (0, 1)]
     with warnings.catch_warnings():
@@ -226,10 +232,18 @@ def test_auto_backend_falls_back_to_python_and_warns_once(monkeypatch):
         induce([0, 1, 0, 1])
 
 
+def test_turned_off_the_auto_backend_runs_python_without_a_warning(monkeypatch):
+    monkeypatch.setenv("ROUTINE_GYM_NATIVE", "0")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert induce([0, 1, 0, 1]).rules == [(R1, R1), (0, 1)]
+    with pytest.raises(ImportError, match="ROUTINE_GYM_NATIVE=0 turns it off"):
+        induce([0, 1], backend="c")
+
+
 def test_c_backend_without_the_core_raises_import_error(monkeypatch):
-    monkeypatch.setattr(sequitur, "_core", None)
-    monkeypatch.setattr(sequitur, "_CORE_ERROR", ImportError("no module named _sequitur"))
-    with pytest.raises(ImportError, match="backend='python'"):
+    _not_built(monkeypatch)
+    with pytest.raises(ImportError, match="no module named _sequitur; use backend='python'"):
         induce([0, 1], backend="c")
 
 

@@ -17,13 +17,15 @@ once:
   episode ended, each with its `_key` mask, exactly as `SyncVectorEnv` with same-step autoreset
   arranges them.
 
-Every game has a compiled core (`routine_gym/_minatar_core.cpp`, built by `pip install`): the
+Every game has a compiled core (`routine_gym/_native/_minatar_core.cpp`, the games of MinAtar
+`routine_gym._native.MINATAR_VERSION`, built by `pip install` where there is a C++17 compiler): the
 same game, its random draws (sticky actions, Breakout's serve, Freeway's cars, Asterix's and
 Seaquest's spawns) taken from each game's own `RandomState`, stepped for all games in one C++
 call that writes the observations straight into the float32 batch. A step of 16 games then
 costs 6-11 µs instead of ~50 (Breakout, Asterix), ~70 (Seaquest), ~100 (Freeway) or ~270 (Space
-Invaders). With `compiled=False`, or where the module was not built, the games go through the
-Python loop.
+Invaders). With `compiled=False`, or where `routine_gym._native.core("minatar_core")` finds no
+core (not built, turned off by `ROUTINE_GYM_NATIVE`, or another MinAtar version installed than
+the one it ports), the games go through the Python loop.
 
 `tests/test_minatar_vector.py` checks, on fixed seeds and actions, that it returns what the
 Python path returns (observations, rewards, flags and every info array), for plain actions and
@@ -42,12 +44,8 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 
+from routine_gym import _native
 from routine_gym.macro_info import PAD_ACTION, masked_rows, padded_actions
-
-try:
-    from routine_gym import _minatar_core
-except ImportError:  # not built (a source checkout without `pip install`): the Python loop
-    _minatar_core = None
 
 __all__ = ["MinAtarVectorEnv"]
 
@@ -138,7 +136,8 @@ class MinAtarVectorEnv(VectorEnv):
         env_kwargs: `gym.make` keyword arguments (`sticky_action_prob`, `difficulty_ramping`,
             `max_episode_steps`).
         compiled: step the games in the compiled core: None uses it where the game has one (all
-            five do) and it was built, True requires it, False keeps the Python loop.
+            five do) and `routine_gym._native.core` finds it, True requires it, False keeps the
+            Python loop.
             With the core the games' state lives in it between resets: reseed and reset them
             through this env's `reset`, not through `games[i]`.
     """
@@ -193,16 +192,15 @@ class MinAtarVectorEnv(VectorEnv):
         if compiled and game_name not in COMPILED_GAMES:
             raise ValueError(f"compiled=True: {env_id} has no compiled core (the games with one: "
                              f"{', '.join(COMPILED_GAMES)})")
-        if compiled and _minatar_core is None:
-            raise ImportError("compiled=True needs routine_gym._minatar_core, which is not built; "
-                              "build it with `pip install -e .` (needs a C++17 compiler)")
-        self.compiled = (compiled is not False and game_name in COMPILED_GAMES
-                         and _minatar_core is not None)
+        if compiled and (reason := _native.unavailable("minatar_core")) is not None:
+            raise ImportError(f"compiled=True needs the compiled core 'minatar_core': {reason}")
+        core = _native.core("minatar_core") if compiled is not False else None
+        self.compiled = core is not None and game_name in COMPILED_GAMES
         if self.compiled:
             # The games' state lives in these arrays between resets (`_load_core`); each game's
             # sticky action is drawn from its own RandomState, kept alive here.
             self._core_fields, self._core_maps, step_name = _CORES[game_name]
-            self._core_step = getattr(_minatar_core, step_name)
+            self._core_step = getattr(core, step_name)
             width = len(_core_row(self._games[0].env, self._core_fields)) + 1
             self._core = np.zeros((num_envs, width), dtype=np.int32)
             self._maps = np.zeros((num_envs, len(self._core_maps), h, w), dtype=np.uint8)

@@ -113,6 +113,7 @@ DOMAINS: dict[str, tuple[Callable[[Any], bool], str | Callable[[Any], str]]] = {
     "demo_episodes": _between(1, MAX_EPISODES),
     "checkpoint_every": _AT_LEAST_0,
     "log_every": _AT_LEAST_1,
+    "scalars_every": _AT_LEAST_1,
     "torch_threads": _between(
         0, MAX_TORCH_THREADS, f" (4 × the {usable_cpus()} CPUs this process may use)"),
     "num_levels": _AT_LEAST_0,

@@ -19,15 +19,17 @@ backward: 10 segments × 33 steps per batch made the fit take minutes on a CPU. 
 Two implementations of the loops, one function:
 
 - `_CompiledMaskedGRU` (CPU, float32 or float64, all four tensors the same dtype; what the fit
-  runs): each loop is one call into `routine_gym._masked_gru` (`_masked_gru.cpp`), which runs
+  runs): each loop is one call into the compiled core `masked_gru`
+  (`routine_gym/_native/_masked_gru.cpp`, through `routine_gym._native.core`), which runs
   every step in C++ with the GIL released, the batch's rows split among `torch.get_num_threads()`
   threads, the step's product in register tiles, σ and tanh vectorized (float32: a Cephes-style
   exp, within a few units in the last place; float64: the C library's). In torch a step was a
   dozen operations of a few microseconds each on [16, 128] tensors. Each row is one thread's, so
   the outputs and the gates' and mask's gradients do not depend on the thread count.
 - `_TorchMaskedGRU`: the same loops in torch operations, for other devices and dtypes, where
-  the module was not built, and where the environment variable `ROUTINE_GYM_COMPILE_GRU=torch`
-  asks for it (to reproduce a fit made before the compiled loops, bit for bit).
+  the core is not built or `ROUTINE_GYM_NATIVE` turns it off, and where the environment
+  variable `ROUTINE_GYM_COMPILE_GRU=torch` asks for it (to reproduce a fit made before the
+  compiled loops, bit for bit).
 
 The compiled loops round differently from torch's (their own products, σ and tanh), so a seeded
 fit is not bit-identical to one made with the torch loop; it is the same model and loss.
@@ -43,12 +45,8 @@ import os
 
 import torch
 
+from routine_gym import _native
 from routine_gym.plumbing.errors import UsageError
-
-try:
-    from routine_gym import _masked_gru as _core
-except ImportError:  # not built (a source tree without `pip install`): the torch loop
-    _core = None
 
 __all__ = ["gru_choice", "masked_gru"]
 
@@ -66,9 +64,10 @@ def gru_choice() -> str:
     if choice not in ("compiled", "torch"):
         raise UsageError(f"{GRU_VARIABLE}={choice!r}: expected 'compiled' (the default) or "
                          "'torch'")
-    if choice == "compiled" and _core is None and os.environ.get(GRU_VARIABLE):
-        raise UsageError(f"{GRU_VARIABLE}=compiled: routine_gym._masked_gru is not built "
-                         "(pip install the project)")
+    if choice == "compiled" and os.environ.get(GRU_VARIABLE) \
+            and _native.core("masked_gru") is None:
+        raise UsageError(f"{GRU_VARIABLE}=compiled: the compiled core 'masked_gru' is not "
+                         f"there ({_native.unavailable('masked_gru')})")
     return choice
 
 
@@ -153,7 +152,8 @@ class _TorchMaskedGRU(torch.autograd.Function):
 
 
 class _CompiledMaskedGRU(torch.autograd.Function):
-    """The recurrence in `routine_gym._masked_gru` (contiguous float32/float64 CPU tensors)."""
+    """The recurrence in the compiled core `masked_gru` (contiguous float32/float64 CPU
+    tensors; `_compiled` has checked that the core is there)."""
 
     @staticmethod
     def forward(ctx, gi: torch.Tensor, mask: torch.Tensor, weight_hh: torch.Tensor,
@@ -166,8 +166,9 @@ class _CompiledMaskedGRU(torch.autograd.Function):
         hs = gi.new_empty(b, steps + 1, h)  # h_{−1} = 0, then h_0 … h_{T−1}
         rz, n, gh_n = gi.new_empty(b, steps, 2 * h), gi.new_empty(b, steps, h), \
             gi.new_empty(b, steps, h)
-        _core.forward(*_arrays(gi, mask, weight_t, bias, hs, rz, n, gh_n), b, steps, h,
-                      torch.get_num_threads(), gi.dtype == torch.float64)
+        _native.core("masked_gru").forward(
+            *_arrays(gi, mask, weight_t, bias, hs, rz, n, gh_n), b, steps, h,
+            torch.get_num_threads(), gi.dtype == torch.float64)
         ctx.save_for_backward(mask, weight, hs, rz, n, gh_n)
         return hs[:, 1:]
 
@@ -180,9 +181,9 @@ class _CompiledMaskedGRU(torch.autograd.Function):
         grad_gh = n.new_empty(b, steps, 3 * h)  # ∂L/∂(W_hh h_{t−1} + b_hh)
         grad_gi = n.new_empty(b, steps, 3 * h)
         grad_mask = n.new_empty(b, steps)
-        _core.backward(*_arrays(grad_outputs, mask, weight, hs, rz, n, gh_n, grad_gh, grad_gi,
-                                grad_mask), b, steps, h, torch.get_num_threads(),
-                       n.dtype == torch.float64)
+        _native.core("masked_gru").backward(
+            *_arrays(grad_outputs, mask, weight, hs, rz, n, gh_n, grad_gh, grad_gi, grad_mask),
+            b, steps, h, torch.get_num_threads(), n.dtype == torch.float64)
         flat = grad_gh.view(-1, 3 * h)
         grad_weight = flat.t() @ hs[:, :-1].reshape(-1, h) if ctx.needs_input_grad[2] else None
         grad_bias = flat.sum(dim=0) if ctx.needs_input_grad[3] else None
@@ -196,7 +197,7 @@ def _arrays(*tensors: torch.Tensor) -> list:
 
 def _compiled(*tensors: torch.Tensor) -> bool:
     """Whether `masked_gru` runs the compiled loops on these tensors."""
-    if gru_choice() == "torch" or _core is None or tensors[0].numel() == 0:
+    if gru_choice() == "torch" or tensors[0].numel() == 0 or _native.core("masked_gru") is None:
         return False  # (an empty batch: nothing to loop over)
     return all(
         t.device.type == "cpu" and t.dtype == tensors[0].dtype for t in tensors

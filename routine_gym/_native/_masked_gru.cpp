@@ -282,7 +282,7 @@ PyMethodDef kMethods[] = {
 };
 
 PyModuleDef kModule = {
-    PyModuleDef_HEAD_INIT, "_masked_gru",
+    PyModuleDef_HEAD_INIT, "routine_gym._native._masked_gru",
     "Compiled recurrence of CompILE's masked GRU (routine_gym.baselines.compile.masked_gru).",
     -1, kMethods, nullptr, nullptr, nullptr, nullptr,
 };

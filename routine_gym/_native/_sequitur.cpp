@@ -549,7 +549,7 @@ PyMethodDef methods[] = {
 };
 
 PyModuleDef module_def = {
-    PyModuleDef_HEAD_INIT, "routine_gym._sequitur",
+    PyModuleDef_HEAD_INIT, "routine_gym._native._sequitur",
     "Compiled core of routine_gym.sequitur (use routine_gym.sequitur.induce).", -1, methods,
     nullptr, nullptr, nullptr, nullptr,
 };

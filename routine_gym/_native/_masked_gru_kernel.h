@@ -1,4 +1,4 @@
-// The masked GRU's loops for routine_gym/_masked_gru.cpp. No include guard, on purpose: the
+// The masked GRU's loops for routine_gym/_native/_masked_gru.cpp. No include guard, on purpose: the
 // module includes this body twice, once for any CPU and once (x86-64 with GCC) compiled for
 // AVX2 and FMA, and picks one at run time. It needs <cmath>, <cstddef>, <cstdint> and <cstring>
 // included before it, outside the namespace it is included into.

@@ -1245,7 +1245,7 @@ PyMethodDef kMethods[] = {
 };
 
 PyModuleDef kModule = {
-    PyModuleDef_HEAD_INIT, "_minatar_core",
+    PyModuleDef_HEAD_INIT, "routine_gym._native._minatar_core",
     "Compiled MinAtar games (all five) for routine_gym.envs.minatar_vector (see the source's "
     "header).",
     -1, kMethods, nullptr, nullptr, nullptr, nullptr,
