@@ -152,7 +152,8 @@ def test_scalability_leaves_out_a_length_the_shipped_demo_has_no_routine_of():
 
 
 @pytest.mark.parametrize(("kwargs", "match"), [
-    ({"name": "nope", "budget": "cpu"}, "unknown experiment 'nope'; choose from tune, imitation, rl"),
+    ({"name": "nope", "budget": "cpu"},
+     "unknown experiment 'nope'; choose from tune, imitation, rl"),
     ({"name": "rl", "budget": "huge"}, "unknown budget 'huge'; choose from smoke, cpu, paper"),
     ({"name": "rl", "budget": "cpu", "seeds": [4]}, "--seeds 4 is outside the cpu budget's seeds"),
     ({"name": "rl", "budget": "cpu", "envs": ["ALE/Pong-v5"]},
