@@ -157,7 +157,7 @@ def write_gif(frames: Sequence[np.ndarray], captions: Sequence[str], path: str |
     """
     from PIL import Image, ImageDraw, ImageFont
 
-    from routine_gym.plumbing.atomic import atomic_write_bytes
+    from routine_gym.atomic import atomic_write_bytes
 
     if len(frames) == 0 or len(frames) != len(captions):
         raise ValueError(f"write_gif needs one caption per frame and at least one frame, got "

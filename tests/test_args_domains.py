@@ -17,8 +17,8 @@ import typing
 import pytest
 from script_loader import ALGOS, load_script
 
+from routine_gym.errors import UsageError
 from routine_gym.plumbing.arguments import DOMAINS
-from routine_gym.plumbing.errors import UsageError
 
 NAMES = sorted(path.stem for path in ALGOS.glob("*.py"))
 SCRIPTS = {name: load_script(name, f"domains_{name}") for name in NAMES}

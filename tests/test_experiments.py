@@ -15,11 +15,11 @@ from pathlib import Path
 
 import pytest
 
+from routine_gym.errors import UsageError
 from routine_gym.experiments import backends, registry, specs, sweep, training_curves
 from routine_gym.experiments import report as report_mod
 from routine_gym.experiments.registry import EXPERIMENTS, build, count_runs
 from routine_gym.experiments.specs import BUDGETS, RunSpec
-from routine_gym.plumbing.errors import UsageError
 
 NAMES = ["imitation", "rl", "curves", "coinrun", "scalability", "ablation", "diagnosis"]
 CLI = [sys.executable, "-m", "routine_gym.cli"]

@@ -39,6 +39,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from routine_gym.errors import UsageError
 from routine_gym.experiments.drawing import colour, figure, game_labels
 from routine_gym.experiments.paper import diagnosis
 from routine_gym.experiments.paper.curves import MeanCurve, mean_curve
@@ -49,7 +50,6 @@ from routine_gym.experiments.results import RunRecord, load_runs
 from routine_gym.experiments.run_counters import mean_bins, mean_routine_shares, run_counter
 from routine_gym.experiments.statistics import standard_error, welch
 from routine_gym.experiments.writing import Writer, num, pct, table
-from routine_gym.plumbing.errors import UsageError
 
 __all__ = ["FILES", "METHODS", "Side", "compare", "load_sides", "section", "steps_label"]
 

@@ -21,9 +21,9 @@ from routine_gym.demo import Demo, read_demo, shipped_demo_path
 from routine_gym.demo.minari import minari_dataset_id
 from routine_gym.envs import same_env
 from routine_gym.envs.factory import make_primitive_env
+from routine_gym.errors import UsageError
 from routine_gym.library import RoutineLibrary
 from routine_gym.mining import MAX_ROUTINE_LENGTH, make_proposer
-from routine_gym.plumbing.errors import UsageError
 
 __all__ = ["check_demo_env", "load_demo", "load_routines"]
 

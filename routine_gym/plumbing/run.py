@@ -12,7 +12,7 @@ checkpoint holds and puts it back on `--resume` (returning the step counters),
 `run.checkpoint_if_due(...)` saves one every `--checkpoint-every` steps (with every RNG state
 and the `Args` as JSON), and `run.finish(policy, ...)` saves the last checkpoint and the model,
 evaluates (`eval.json`, `--extra-evals`), records `--record-demo` and closes the writer; files
-go through the one atomic writer of `routine_gym.plumbing.atomic`. With `--track` the writer's
+go through the one atomic writer of `routine_gym.atomic`. With `--track` the writer's
 scalars also go to Weights & Biases (`routine_gym.plumbing.tracking`), and the W&B run id
 travels in the checkpoints so that `--resume` continues the same W&B run.
 
@@ -36,10 +36,10 @@ from typing import Any
 import numpy as np
 import torch
 
+from routine_gym.atomic import atomic_write_bytes, check_folder, check_writable
+from routine_gym.errors import UsageError
 from routine_gym.plumbing.arguments import ExtraChecks, check_args, given_flags, parse_args
-from routine_gym.plumbing.atomic import atomic_write_bytes, check_folder, check_writable
 from routine_gym.plumbing.checkpoint import CHECKPOINT_NAME, resume_settings, write_checkpoint
-from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.memory import keep_freed_memory
 from routine_gym.plumbing.rng import rng_state, set_rng_state
 from routine_gym.plumbing.seeds import demo_seed, eval_seed, stride_checks
@@ -60,10 +60,10 @@ __all__ = [
 def run_script(main: Callable[[Any], Any], args_type: type,
                renamed: dict[str, str] | None = None) -> None:
     """A script's entry point: parse its flags and run `main`, reporting a user's mistakes
-    (`routine_gym.plumbing.errors`) as one line on stderr with exit code 2; `--debug` (or
+    (`routine_gym.errors`) as one line on stderr with exit code 2; `--debug` (or
     `ROUTINE_GYM_DEBUG=1`) shows their traceback instead. A bug keeps its traceback."""
     from routine_gym.envs import quiet_ale
-    from routine_gym.plumbing.errors import debug_requested, expected_errors, one_line
+    from routine_gym.errors import debug_requested, expected_errors, one_line
 
     quiet_ale()
     argv = sys.argv[1:]

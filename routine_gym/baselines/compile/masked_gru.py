@@ -43,7 +43,7 @@ import os
 
 import torch
 
-from routine_gym.plumbing.errors import UsageError
+from routine_gym.errors import UsageError
 
 try:
     from routine_gym import _masked_gru as _core

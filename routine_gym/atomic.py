@@ -20,7 +20,7 @@ import re
 import secrets
 import stat
 
-from routine_gym.plumbing.errors import UsageError
+from routine_gym.errors import UsageError
 
 __all__ = [
     "atomic_write_bytes",
