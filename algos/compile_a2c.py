@@ -75,11 +75,11 @@ from routine_gym.baselines.compile import (
     train_compile,
 )
 from routine_gym.envs.factory import make_env
+from routine_gym.errors import UsageError
 from routine_gym.imitation.agent_view import agent_view_states, decision_steps
 from routine_gym.networks import ObservationEncoder, categorical_policy, layer_init
 from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent, scalars_due
 from routine_gym.plumbing.divergence import check_update
-from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.loading import load_demo
 from routine_gym.plumbing.memory import check_rollout_memory
 from routine_gym.plumbing.run import Every, eval_env_kwargs, run_script, start_run, train_env_kwargs

@@ -47,6 +47,7 @@ import torch.nn as nn
 import routine_gym
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_primitive_env, make_vector_env
+from routine_gym.errors import UsageError
 from routine_gym.networks import (
     ObservationEncoder,
     categorical_policy,
@@ -56,7 +57,6 @@ from routine_gym.networks import (
 from routine_gym.plumbing.arguments import given_flags
 from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent, scalars_due
 from routine_gym.plumbing.divergence import check_update
-from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.loading import load_demo
 from routine_gym.plumbing.memory import check_rollout_memory
 from routine_gym.plumbing.run import (

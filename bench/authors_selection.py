@@ -25,7 +25,8 @@ from pathlib import Path
 from unittest import mock
 
 from routine_gym.demo import Demo
-from routine_gym.mining import SequiturMiner, _Selector
+from routine_gym.mining import SequiturMiner
+from routine_gym.selection import _Selector
 
 REPO = Path(__file__).resolve().parent.parent
 K, ALPHA = 3, 2

@@ -914,7 +914,7 @@ def main(argv: list[str] | None = None) -> None:
         net_worker(args)
         return
 
-    from routine_gym.plumbing.atomic import atomic_write_text
+    from routine_gym.atomic import atomic_write_text
 
     if args.from_json is not None:
         raw = json.loads(args.from_json.read_text())

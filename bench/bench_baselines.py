@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import base_machine_info, load_average  # noqa: E402
 
 import routine_gym  # noqa: E402
-from routine_gym.plumbing.atomic import atomic_write_text  # noqa: E402
+from routine_gym.atomic import atomic_write_text  # noqa: E402
 from routine_gym.plumbing.evaluation import random_policy_scores  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]

@@ -564,7 +564,7 @@ def main(argv: list[str] | None = None) -> None:
         worker(args)
         return
 
-    from routine_gym.plumbing.atomic import atomic_write_text
+    from routine_gym.atomic import atomic_write_text
 
     if args.from_json is not None:
         if not args.from_json.is_file():

@@ -193,7 +193,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.steps == 0 and args.atari_steps == 0:
         parser.error("nothing to run: --steps and --atari-steps are both 0")
 
-    from routine_gym.plumbing.atomic import atomic_write_text
+    from routine_gym.atomic import atomic_write_text
 
     command = "python " + shlex.join([os.path.relpath(__file__, REPO), *sys.argv[1:]])
     info = machine_info()

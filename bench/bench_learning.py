@@ -341,7 +341,7 @@ def main(argv: list[str] | None = None) -> None:
     if any(not 0 < f for f in args.fractions):
         parser.error(f"--fractions need to be > 0, actual value: {args.fractions}")
 
-    from routine_gym.plumbing.atomic import atomic_write_text
+    from routine_gym.atomic import atomic_write_text
 
     if args.from_json:
         batches = []

@@ -64,10 +64,10 @@ from common import base_machine_info, load_average
 from sksequitur import parse as sksequitur_parse
 
 import routine_gym
+from routine_gym.atomic import atomic_write_text
 from routine_gym.demo import Demo
 from routine_gym.library import RoutineLibrary
 from routine_gym.mining import MAX_ROUTINE_LENGTH, SequiturMiner
-from routine_gym.plumbing.atomic import atomic_write_text
 from routine_gym.sequitur import induce
 
 REPO = Path(__file__).resolve().parents[1]

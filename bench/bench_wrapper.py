@@ -60,7 +60,7 @@ from gymnasium.wrappers import RecordEpisodeStatistics, RepeatAction, TimeLimit
 
 import routine_gym
 import routine_gym.wrapper
-from routine_gym.plumbing.atomic import atomic_write_text
+from routine_gym.atomic import atomic_write_text
 from routine_gym.wrapper import RoutineActionWrapper
 
 REPO = Path(__file__).resolve().parents[1]

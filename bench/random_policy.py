@@ -19,8 +19,8 @@ from pathlib import Path
 from common import base_machine_info, load_average
 
 import routine_gym
+from routine_gym.atomic import atomic_write_text
 from routine_gym.demo import DEMO_SUITE
-from routine_gym.plumbing.atomic import atomic_write_text
 from routine_gym.plumbing.evaluation import random_policy_scores
 
 RESULTS = Path(__file__).resolve().parent / "results"

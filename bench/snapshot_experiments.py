@@ -32,12 +32,12 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import base_machine_info, load_average  # noqa: E402
 
+from routine_gym.atomic import atomic_write_text  # noqa: E402
+from routine_gym.errors import UsageError, one_line  # noqa: E402
 from routine_gym.experiments import json_kind, read_json_object  # noqa: E402
 from routine_gym.experiments.registry import EXPERIMENTS  # noqa: E402
 from routine_gym.experiments.report import write_report  # noqa: E402
 from routine_gym.experiments.results import result_problem  # noqa: E402
-from routine_gym.plumbing.atomic import atomic_write_text  # noqa: E402
-from routine_gym.plumbing.errors import UsageError, one_line  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 

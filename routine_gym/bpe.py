@@ -121,6 +121,55 @@ def _non_overlapping(positions: Sequence[int], nxt: list[int]) -> int:
     return count
 
 
+def _linked(episodes: Sequence[np.ndarray]) -> tuple[list[int], list[int], list[int], list[int]]:
+    """`(tok, nxt, prv, starts)`: every sequence's tokens in one list, doubly linked, and the
+    position of each sequence's first token; -1 ends a sequence, so no pair spans two."""
+    tok: list[int] = np.concatenate(episodes).tolist() if episodes else []
+    n = len(tok)
+    nxt = list(range(1, n + 1))
+    prv = list(range(-1, n - 1))
+    starts = np.concatenate([[0], np.cumsum([e.size for e in episodes])])[:-1].tolist()
+    for e, s in zip(episodes, starts, strict=True):
+        if e.size:
+            prv[s] = -1
+            nxt[s + e.size - 1] = -1
+    return tok, nxt, prv, starts
+
+
+def _pair_positions(tok: list[int], nxt: list[int]
+                    ) -> tuple[dict[Pair, set[int]], dict[Pair, list[int]]]:
+    """`(where, order)`: every pair's left positions (overlapping ones too), and a lazy min-heap
+    of them that gives the pair's first occurrence (a position no longer the pair's is dropped
+    when it reaches the top)."""
+    where: dict[Pair, set[int]] = {}
+    order: dict[Pair, list[int]] = {}
+    for p in range(len(tok)):
+        q = nxt[p]
+        if q >= 0:
+            pair = (tok[p], tok[q])
+            if pair in where:
+                where[pair].add(p)
+                order[pair].append(p)  # ascending: already a heap
+            else:
+                where[pair] = {p}
+                order[pair] = [p]
+    return where, order
+
+
+def _segments(episodes: Sequence[np.ndarray], starts: list[int], tok: list[int],
+              nxt: list[int]) -> tuple[tuple[int, ...], ...]:
+    """The tokens of each sequence, read along the links from its first position."""
+    segments = []
+    for e, s in zip(episodes, starts, strict=True):
+        tokens = []
+        p = s if e.size else -1
+        while p >= 0:
+            tokens.append(tok[p])
+            p = nxt[p]
+        segments.append(tuple(tokens))
+    return tuple(segments)
+
+
 def encode(actions: Any, max_merges: int | None = None) -> Encoding:
     """Byte-pair encode one sequence of actions or several (episodes, decision segments).
 
@@ -137,34 +186,10 @@ def encode(actions: Any, max_merges: int | None = None) -> Encoding:
                                    or max_merges < 1):
         raise ValueError(f"max_merges needs to be an integer ≥ 1 or None, got {max_merges!r}")
     episodes = _as_episodes(actions)
-    tok: list[int] = np.concatenate(episodes).tolist() if episodes else []
-    n = len(tok)
+    tok, nxt, prv, starts = _linked(episodes)
     num_actions = max(tok) + 1 if tok else 0
-    # A doubly linked list of the tokens; -1 ends a sequence, so no pair spans two.
-    nxt = list(range(1, n + 1))
-    prv = list(range(-1, n - 1))
-    starts = np.concatenate([[0], np.cumsum([e.size for e in episodes])])[:-1].tolist()
-    for e, s in zip(episodes, starts, strict=True):
-        if e.size:
-            prv[s] = -1
-            nxt[s + e.size - 1] = -1
-    alive = [True] * n
-
-    # Every pair's left positions (overlapping ones too), and a lazy min-heap of them that
-    # gives the pair's first occurrence (a position no longer the pair's is dropped when it
-    # reaches the top).
-    where: dict[Pair, set[int]] = {}
-    order: dict[Pair, list[int]] = {}
-    for p in range(n):
-        q = nxt[p]
-        if q >= 0:
-            pair = (tok[p], tok[q])
-            if pair in where:
-                where[pair].add(p)
-                order[pair].append(p)  # ascending: already a heap
-            else:
-                where[pair] = {p}
-                order[pair] = [p]
+    alive = [True] * len(tok)
+    where, order = _pair_positions(tok, nxt)
 
     def first(pair: Pair) -> int:
         positions = order[pair]
@@ -248,12 +273,5 @@ def encode(actions: Any, max_merges: int | None = None) -> Encoding:
             if e is not None:
                 heapq.heappush(heap, e)
 
-    segments = []
-    for e, s in zip(episodes, starts, strict=True):
-        tokens = []
-        p = s if e.size else -1
-        while p >= 0:
-            tokens.append(tok[p])
-            p = nxt[p]
-        segments.append(tuple(tokens))
-    return Encoding(tuple(merges), tuple(segments), num_actions, tuple(counts))
+    return Encoding(tuple(merges), _segments(episodes, starts, tok, nxt), num_actions,
+                    tuple(counts))

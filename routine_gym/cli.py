@@ -72,8 +72,8 @@ def _load_demo(path: str):
 
 
 def cmd_mine(args: argparse.Namespace) -> int:
+    from routine_gym.atomic import check_writable
     from routine_gym.mining import SELECTIONS, make_proposer
-    from routine_gym.plumbing.atomic import check_writable
 
     _needs("--num-routines", args.num_routines, args.num_routines >= 1, "≥ 1")
     _needs("--length-weight", args.length_weight, args.length_weight >= 0, "≥ 0")
@@ -158,10 +158,10 @@ def _file_version(path: Path) -> int:
 
 
 def cmd_upgrade(args: argparse.Namespace) -> int:
+    from routine_gym.atomic import check_writable
     from routine_gym.demo import DEMO_VERSION, DemoReplayError, upgrade_demo
     from routine_gym.demo.minari import minari_dataset_id
     from routine_gym.envs.factory import recording_stacks
-    from routine_gym.plumbing.atomic import check_writable
 
     if minari_dataset_id(args.demo) is not None:
         raise CLIError(f"upgrade rewrites a version-1 demo file; {args.demo} is a Minari "
@@ -267,9 +267,9 @@ def _show_demo_files(files: list[Path], num_routines: int) -> None:
 
 def cmd_picture(args: argparse.Namespace) -> int:
     from routine_gym import pictures
+    from routine_gym.atomic import check_writable
     from routine_gym.demo.minari import minari_dataset_id
     from routine_gym.mining import SequiturMiner
-    from routine_gym.plumbing.atomic import check_writable
 
     _needs("--num-routines", args.num_routines, args.num_routines >= 1, "≥ 1")
     _not_an_input(args.out, "--out", args.source)
@@ -354,8 +354,8 @@ def _resolve_policy(spec: str, env, noise: float = 0.0, seed: int = 0) -> Callab
 
 
 def cmd_record(args: argparse.Namespace) -> int:
+    from routine_gym.atomic import check_writable
     from routine_gym.envs import make_env
-    from routine_gym.plumbing.atomic import check_writable
 
     _needs("--episodes", args.episodes, args.episodes >= 1, "≥ 1")
     _needs("--seed", args.seed, args.seed >= 0, "≥ 0")
@@ -390,8 +390,8 @@ def cmd_record(args: argparse.Namespace) -> int:
 
 
 def cmd_play(args: argparse.Namespace) -> int:
+    from routine_gym.atomic import check_writable
     from routine_gym.demo import record_human_demo
-    from routine_gym.plumbing.atomic import check_writable
 
     _needs("--episodes", args.episodes, args.episodes >= 1, "≥ 1")
     _needs("--seed", args.seed, args.seed >= 0, "≥ 0")
@@ -569,7 +569,7 @@ def cmd_experiment_report(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     from routine_gym.envs import quiet_ale
-    from routine_gym.plumbing.errors import debug_requested, one_line
+    from routine_gym.errors import debug_requested, one_line
 
     quiet_ale()
     argv = list(sys.argv[1:] if argv is None else argv)

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import argparse
 
+from routine_gym.mining import PROPOSER_NAMES
+
 __all__ = ["build_parsers"]
 
 
@@ -49,7 +51,7 @@ def _add_mine(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--alpha", type=int, default=2,
                    help="prune candidates within this Levenshtein distance of an accepted one (2)")
     p.add_argument("--proposer", default="full",
-                   choices=["full", "random", "enumerate", "random-fetch", "repeat", "bpe"],
+                   choices=PROPOSER_NAMES,
                    help="full = Sequitur (the paper's model); bpe = byte-pair encoding (merge the "
                    "most frequent pair of actions until none occurs twice); the others are the "
                    "paper's ablations")

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from routine_gym.plumbing.atomic import atomic_write_text
+from routine_gym.atomic import atomic_write_text
 
 Routine = tuple[int, ...]
 
@@ -163,11 +163,11 @@ class RoutineLibrary:
 
         Raises:
             FileNotFoundError: no file at `path`.
-            routine_gym.plumbing.errors.UsageError: naming the file, for a file that is not a valid
+            routine_gym.errors.UsageError: naming the file, for a file that is not a valid
                 library (not JSON, not one, a routine with a non-integer or negative action or
                 one outside its named actions).
         """
-        from routine_gym.plumbing.errors import UsageError
+        from routine_gym.errors import UsageError
 
         if not os.path.isfile(path):
             if os.path.exists(path):

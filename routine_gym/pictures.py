@@ -470,7 +470,7 @@ def save_png(fig: Any, path: str | os.PathLike, dpi: int = 100) -> None:
     kilobytes where full colour takes a megabyte."""
     from PIL import Image
 
-    from routine_gym.plumbing.atomic import atomic_write_bytes
+    from routine_gym.atomic import atomic_write_bytes
 
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=dpi)

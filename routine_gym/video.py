@@ -262,7 +262,7 @@ def write_gif(frames: Sequence[np.ndarray], captions: Sequence[str], path: str |
     frame, whatever the episode's length. A frame identical to the one before it lengthens
     that one's display instead (as Pillow's own writer does).
     """
-    from routine_gym.plumbing.atomic import atomic_write_chunks
+    from routine_gym.atomic import atomic_write_chunks
 
     if len(frames) == 0 or len(frames) != len(captions):
         raise ValueError(f"write_gif needs one caption per frame and at least one frame, got "

@@ -17,6 +17,7 @@ import typing
 import pytest
 from script_loader import ALGOS, load_script
 
+from routine_gym.errors import UsageError
 from routine_gym.plumbing.arguments import (
     DOMAINS,
     MAX_TORCH_THREADS,
@@ -24,7 +25,6 @@ from routine_gym.plumbing.arguments import (
     check_args,
     usable_cpus,
 )
-from routine_gym.plumbing.errors import UsageError
 
 NAMES = sorted(path.stem for path in ALGOS.glob("*.py"))
 SCRIPTS = {name: load_script(name, f"domains_{name}") for name in NAMES}

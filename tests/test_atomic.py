@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from routine_gym.plumbing.atomic import atomic_write_bytes, check_writable, temporary_path
-from routine_gym.plumbing.errors import UsageError
+from routine_gym.atomic import atomic_write_bytes, check_writable, temporary_path
+from routine_gym.errors import UsageError
 
 WRITERS = 6
 WRITES = 150
@@ -20,7 +20,7 @@ SIZE = 200_000  # large enough that a write is not one page: a torn read would s
 # Writer `i` writes SIZE copies of byte i, WRITES times, to the same target.
 _WRITER = textwrap.dedent("""
     import sys
-    from routine_gym.plumbing.atomic import atomic_write_bytes
+    from routine_gym.atomic import atomic_write_bytes
     target, i, writes, size = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
     payload = bytes([i]) * size
     for _ in range(writes):

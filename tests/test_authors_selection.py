@@ -18,9 +18,9 @@ import pytest
 from one_line import assert_one_line_error
 
 from routine_gym.demo import Demo
+from routine_gym.errors import UsageError
 from routine_gym.library import RoutineLibrary
 from routine_gym.mining import SequiturMiner, make_proposer
-from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.loading import load_routines
 
 REPO = Path(__file__).resolve().parent.parent

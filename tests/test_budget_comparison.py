@@ -21,11 +21,11 @@ import numpy as np
 import pytest
 from one_line import assert_one_line_error
 
+from routine_gym.errors import UsageError
 from routine_gym.experiments import budget_comparison as bc
 from routine_gym.experiments import report
 from routine_gym.experiments.reference import REFERENCE_EPISODES, REFERENCE_SEED
 from routine_gym.experiments.training_curves import CURVE_BINS
-from routine_gym.plumbing.errors import UsageError
 
 BREAKOUT, ASTERIX, SEAQUEST = "MinAtar/Breakout-v1", "MinAtar/Asterix-v1", "MinAtar/Seaquest-v1"
 SHORT, LONG = 1_000, 10_000

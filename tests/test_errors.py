@@ -23,10 +23,10 @@ import pytest
 import torch
 from one_line import assert_one_line_error
 
+from routine_gym.atomic import atomic_write_bytes, temporary_path
 from routine_gym.demo import Demo, shipped_demo_path
+from routine_gym.errors import UsageError
 from routine_gym.library import RoutineLibrary
-from routine_gym.plumbing.atomic import atomic_write_bytes, temporary_path
-from routine_gym.plumbing.errors import UsageError
 
 REPO = Path(__file__).resolve().parent.parent
 MINIQBERT_DEMO = shipped_demo_path("MiniQbert-v0")

@@ -15,11 +15,11 @@ from pathlib import Path
 
 import pytest
 
+from routine_gym.errors import UsageError
 from routine_gym.experiments import backends, registry, specs, sweep, training_curves
 from routine_gym.experiments import report as report_mod
 from routine_gym.experiments.registry import EXPERIMENTS, build, count_runs
 from routine_gym.experiments.specs import BUDGETS, RunSpec
-from routine_gym.plumbing.errors import UsageError
 
 NAMES = ["tune", "imitation", "rl", "curves", "coinrun", "scalability", "ablation", "diagnosis"]
 #: The experiments with runs at the smoke budget (tune has runs only where a budget tunes).

@@ -15,8 +15,8 @@ from script_loader import load_script
 import routine_gym  # noqa: F401  (registers MiniQbert-v0 and procgen/CoinRun-v0)
 from routine_gym.demo import Demo, record_agent_demo, shipped_demo_path
 from routine_gym.envs.factory import default_env_kwargs, preprocess
+from routine_gym.errors import UsageError
 from routine_gym.library import RoutineLibrary
-from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.evaluation import evaluate_policy
 from routine_gym.plumbing.loading import check_demo_env, load_routines
 

@@ -25,6 +25,7 @@ from hypothesis import strategies as st
 
 from routine_gym import cli
 from routine_gym.demo import Demo, shipped_demo_path
+from routine_gym.errors import UsageError
 from routine_gym.mining import (
     MAX_ROUTINE_LENGTH,
     PROPOSERS,
@@ -33,7 +34,6 @@ from routine_gym.mining import (
 )
 from routine_gym.occurrences import OccurrenceIndex
 from routine_gym.plumbing.arguments import check_args
-from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.loading import load_routines
 from routine_gym.sequitur import induce
 

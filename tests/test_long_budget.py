@@ -16,11 +16,11 @@ from pathlib import Path
 import pytest
 from one_line import assert_one_line_error
 
+from routine_gym.errors import UsageError
 from routine_gym.experiments import backends, provenance, reference, registry, report, sweep
 from routine_gym.experiments.paper import diagnosis
 from routine_gym.experiments.paper.diagnosis import AUTHORS
 from routine_gym.experiments.specs import BUDGETS, MINATAR
-from routine_gym.plumbing.errors import UsageError
 
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent  # the venv a user installs into

@@ -20,8 +20,8 @@ from minari.data_collector.episode_buffer import EpisodeBuffer
 from one_line import assert_one_line_error
 
 from routine_gym.demo import Demo, export_minari, load_minari_demo, read_demo, replay
+from routine_gym.errors import UsageError
 from routine_gym.mining import SequiturMiner
-from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.loading import load_demo
 
 REPO = Path(__file__).resolve().parent.parent

@@ -14,7 +14,7 @@ import pytest
 from one_line import assert_one_line_error
 
 from routine_gym import _native
-from routine_gym.plumbing.errors import UsageError
+from routine_gym.errors import UsageError
 
 REPO = Path(__file__).resolve().parent.parent
 

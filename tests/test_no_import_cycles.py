@@ -11,8 +11,8 @@ deferred imports and one module-level one; a module-level-only graph could not s
 
 One statement is not an edge: `import routine_gym` (or any package holding the importing
 module) in one of its submodules. Python has begun importing that package before the submodule
-runs, so the statement only binds its name (`routine_gym.demo.suite` reads `routine_gym.__file__`
-that way). `from routine_gym import Name` of a name the package defines is an edge, as the name
+runs, so the statement only binds its name (a submodule that reads `routine_gym.__file__`, say).
+`from routine_gym import Name` of a name the package defines is an edge, as the name
 may not exist yet while the package is half imported.
 """
 

@@ -15,7 +15,7 @@ import torch
 from script_loader import load_script
 
 from routine_gym.cli import main as cli_main
-from routine_gym.plumbing.errors import UsageError
+from routine_gym.errors import UsageError
 
 REPO = Path(__file__).resolve().parent.parent
 DEMO = str(REPO / "demos" / "MiniQbert-v0.npz")

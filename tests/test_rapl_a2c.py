@@ -20,8 +20,8 @@ from script_loader import load_script
 import routine_gym  # noqa: F401  (registers MiniQbert, CoinRun and the ALE envs)
 from routine_gym.demo import DEMO_SUITE, Demo, record_agent_demo, replay, shipped_demo_path
 from routine_gym.envs.factory import default_env_kwargs
+from routine_gym.errors import UsageError
 from routine_gym.library import RoutineLibrary
-from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.loading import load_routines
 
 pytestmark = pytest.mark.filterwarnings(

@@ -23,8 +23,8 @@ from script_loader import load_script
 import routine_gym  # noqa: F401  (registers MiniQbert, CoinRun, MinAtar and the ALE envs)
 from routine_gym.demo import record_agent_demo
 from routine_gym.envs.factory import default_env_kwargs
+from routine_gym.errors import UsageError
 from routine_gym.library import RoutineLibrary
-from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.run import Run
 from routine_gym.ppo import (
     clipped_policy_loss,

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import scipy.stats
 
+from routine_gym.errors import UsageError
 from routine_gym.experiments import (
     backends,
     drawing,
@@ -26,7 +27,6 @@ from routine_gym.experiments import (
 )
 from routine_gym.experiments.paper import ablation
 from routine_gym.metrics import iqm
-from routine_gym.plumbing.errors import UsageError
 
 BREAKOUT = "MinAtar/Breakout-v1"  # demo-normalised: random 0, demo 10
 ASTERIX = "MinAtar/Asterix-v1"  # demo-normalised: random 1, demo 21

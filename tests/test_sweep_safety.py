@@ -21,6 +21,7 @@ from pathlib import Path
 import pytest
 from one_line import assert_one_line_error
 
+from routine_gym.errors import UsageError
 from routine_gym.experiments import (
     backends,
     folder_lock,
@@ -33,7 +34,6 @@ from routine_gym.experiments import (
     sweep,
 )
 from routine_gym.experiments.specs import RunSpec
-from routine_gym.plumbing.errors import UsageError
 
 #: The sweep's errors are the CLI's: one line starting `routine-gym: error: `.
 _one_line_error = functools.partial(assert_one_line_error, prefix="routine-gym: error: ")

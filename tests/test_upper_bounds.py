@@ -14,9 +14,9 @@ import pytest
 from one_line import assert_one_line_error
 from script_loader import ALGOS, load_script
 
+from routine_gym.errors import UsageError
 from routine_gym.plumbing import memory
 from routine_gym.plumbing.arguments import MAX_TORCH_THREADS
-from routine_gym.plumbing.errors import UsageError
 
 BIN = Path(sys.executable).parent
 

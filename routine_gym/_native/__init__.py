@@ -41,7 +41,7 @@ import os
 import warnings
 from types import ModuleType
 
-from routine_gym.plumbing.errors import UsageError
+from routine_gym.errors import UsageError
 
 __all__ = ["CORES", "MINATAR_VERSION", "NATIVE_VARIABLE", "UPSTREAM", "core", "enabled",
            "installed_version", "unavailable"]

@@ -39,8 +39,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from routine_gym.atomic import atomic_write_bytes
 from routine_gym.demo.npz import DEMO_FORMAT, DEMO_VERSION, _to_json, read_demo_file
-from routine_gym.plumbing.atomic import atomic_write_bytes
 
 
 def _routine_gym_version() -> str:

@@ -67,7 +67,7 @@ import numpy as np
 
 from routine_gym.demo.format import Demo, _check_env, _routine_gym_version
 from routine_gym.demo.npz import MAX_STEPS, _from_json, _to_json
-from routine_gym.plumbing.errors import UsageError
+from routine_gym.errors import UsageError
 
 __all__ = [
     "MINARI_SCHEME",

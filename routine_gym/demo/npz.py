@@ -56,7 +56,7 @@ from typing import Any
 
 import numpy as np
 
-from routine_gym.plumbing.errors import UsageError
+from routine_gym.errors import UsageError
 
 __all__ = [
     "DEMO_FORMAT",

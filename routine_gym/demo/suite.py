@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import os
 
-import routine_gym
-
 #: Where the shipped demonstrations live. The repository's top-level `demos/` folder is installed
 #: as `routine_gym/demos/` (package data, mapped in pyproject.toml); an editable install or a
 #: source checkout has no such folder and reads `demos/` in place, next to the package.
-# The package is `routine_gym` itself, not this module's folder (its `demo/` subpackage).
-_PACKAGE_DIR = os.path.dirname(os.path.abspath(routine_gym.__file__))
+# The package is `routine_gym` itself, this module's folder's parent (not its `demo/` subpackage);
+# found from this file, so that the demo formats need not import the package's face above them.
+_PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DEMOS_DIR = os.path.join(_PACKAGE_DIR, "demos")
 if not os.path.isdir(DEMOS_DIR):
     DEMOS_DIR = os.path.join(os.path.dirname(_PACKAGE_DIR), "demos")

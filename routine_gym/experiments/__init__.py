@@ -15,7 +15,7 @@ import os
 from datetime import UTC, datetime
 from typing import Any
 
-from routine_gym.plumbing.errors import UsageError, one_line
+from routine_gym.errors import UsageError, one_line
 
 __all__ = ["JSON_KINDS", "json_kind", "os_problem", "read_json_object", "utc_now"]
 

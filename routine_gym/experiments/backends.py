@@ -32,6 +32,8 @@ from typing import Any
 
 import numpy as np
 
+from routine_gym.atomic import atomic_write_text
+from routine_gym.errors import UsageError, one_line
 from routine_gym.experiments import read_json_object, utc_now
 from routine_gym.experiments.provenance import NOTE_EVERY, Attempts
 from routine_gym.experiments.results import result_problem
@@ -42,8 +44,6 @@ from routine_gym.experiments.training_curves import (
     curve_bins,
     read_scalars,
 )
-from routine_gym.plumbing.atomic import atomic_write_text
-from routine_gym.plumbing.errors import UsageError, one_line
 
 __all__ = ["LocalBackend", "RayBackend", "command", "execute_run", "install_signal_handlers",
            "file_tail", "script_path", "tracking_flags"]

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from routine_gym.plumbing.errors import UsageError
+from routine_gym.errors import UsageError
 
 __all__ = ["RULES", "choose_point", "derived_flags", "grid_scores", "rollout_for_updates"]
 

@@ -20,8 +20,8 @@ import threading
 from pathlib import Path
 from typing import Any
 
+from routine_gym.errors import UsageError
 from routine_gym.experiments import os_problem, utc_now
-from routine_gym.plumbing.errors import UsageError
 
 __all__ = ["LOCK_FILE", "lock_holder", "sweep_folder", "sweep_lock"]
 

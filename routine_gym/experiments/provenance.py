@@ -25,9 +25,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+from routine_gym.atomic import atomic_write_text
+from routine_gym.errors import UsageError
 from routine_gym.experiments import read_json_object, utc_now
-from routine_gym.plumbing.atomic import atomic_write_text
-from routine_gym.plumbing.errors import UsageError
 
 __all__ = ["NOTE_EVERY", "Attempts", "machine", "wall_seconds"]
 

@@ -14,10 +14,10 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from routine_gym.atomic import atomic_write_text
+from routine_gym.errors import UsageError
 from routine_gym.experiments import json_kind, read_json_object
 from routine_gym.experiments.results import is_number
-from routine_gym.plumbing.atomic import atomic_write_text
-from routine_gym.plumbing.errors import UsageError
 
 __all__ = ["REFERENCE_EPISODES", "REFERENCE_SEED", "Reference", "demo_score",
            "random_policy_scores", "reference_scores"]

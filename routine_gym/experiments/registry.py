@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
+from routine_gym.errors import UsageError
 from routine_gym.experiments.experiment import Experiment
 from routine_gym.experiments.paper import (
     ablation,
@@ -27,7 +28,6 @@ from routine_gym.experiments.paper import (
     tune,
 )
 from routine_gym.experiments.specs import BUDGETS, Builder, Entry
-from routine_gym.plumbing.errors import UsageError
 
 __all__ = ["EXPERIMENTS", "available", "build", "count_runs", "games", "left_out",
            "register"]

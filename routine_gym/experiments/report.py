@@ -42,6 +42,8 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
+from routine_gym.atomic import atomic_write_text
+from routine_gym.errors import UsageError, one_line
 from routine_gym.experiments import budget_comparison
 from routine_gym.experiments.folder_lock import lock_holder
 from routine_gym.experiments.reference import (
@@ -54,8 +56,6 @@ from routine_gym.experiments.registry import EXPERIMENTS
 from routine_gym.experiments.results import RunRecord, load_runs
 from routine_gym.experiments.specs import BUDGETS
 from routine_gym.experiments.writing import Writer, num, table
-from routine_gym.plumbing.atomic import atomic_write_text
-from routine_gym.plumbing.errors import UsageError, one_line
 
 __all__ = ["report_files", "write_report"]
 

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from routine_gym.errors import UsageError
 from routine_gym.experiments import json_kind, read_json_object
-from routine_gym.plumbing.errors import UsageError
 
 __all__ = ["RESULT_HINT", "Manifest", "RunRecord", "is_number", "load_result", "load_runs",
            "result_problem"]

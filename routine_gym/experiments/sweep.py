@@ -54,14 +54,14 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from routine_gym.atomic import atomic_write_text
+from routine_gym.errors import UsageError, one_line
 from routine_gym.experiments import os_problem, read_json_object, utc_now
 from routine_gym.experiments.backends import LocalBackend, RayBackend, file_tail
 from routine_gym.experiments.folder_lock import sweep_lock
 from routine_gym.experiments.registry import EXPERIMENTS, available, build, games, left_out
 from routine_gym.experiments.results import result_problem
 from routine_gym.experiments.specs import BUDGETS, Entry, RunSpec
-from routine_gym.plumbing.atomic import atomic_write_text
-from routine_gym.plumbing.errors import UsageError, one_line
 
 __all__ = ["CONNECT_TIMEOUT", "SweepSummary", "check_options", "check_ray_address", "plan",
            "run_experiment"]

@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from routine_gym.atomic import atomic_write_bytes, atomic_write_text
 from routine_gym.experiments.reference import Reference
-from routine_gym.plumbing.atomic import atomic_write_bytes, atomic_write_text
 
 __all__ = ["Writer", "interval", "num", "pct", "table"]
 

@@ -9,8 +9,10 @@ carries a run from its flags to its files and is the same whatever the algorithm
 - `loading`: the demo and the routines of a run.
 - `evaluation`: the one evaluation of every script and its `eval.json`.
 - `checkpoint` and `rng`: resumable checkpoints and the generators' state they hold.
-- `atomic`: the one writer of every file (never half a file on disk).
-- `errors`: a user's mistakes and how they are reported.
+
+Two pieces it leans on sit below it, at the top of `routine_gym/`, because the library, the demo
+formats and the videos need them too: `routine_gym.atomic`, the one writer of every file (never
+half a file on disk), and `routine_gym.errors`, a user's mistakes and how they are reported.
 
 It is called plumbing because that is what it is: pipes between the paper's pieces and the
 disk, the command line and the user, that a reader of the paper need not open. Importing the

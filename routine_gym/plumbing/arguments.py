@@ -18,7 +18,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import fields
 from typing import Any
 
-from routine_gym.plumbing.errors import UsageError
+from routine_gym.errors import UsageError
 
 __all__ = ["DOMAINS", "ExtraChecks", "check_args", "given_flags", "parse_args", "usable_cpus"]
 
@@ -157,7 +157,7 @@ def check_args(args: Any, extra: ExtraChecks = ()) -> None:
         >>> check_args(Args())
         Traceback (most recent call last):
         ...
-        routine_gym.plumbing.errors.UsageError: --gamma needs to be in (0, 1], actual value: 1.5
+        routine_gym.errors.UsageError: --gamma needs to be in (0, 1], actual value: 1.5
     """
     for f in fields(args):
         if f.name not in DOMAINS:

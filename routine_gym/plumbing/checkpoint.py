@@ -18,8 +18,8 @@ from typing import Any
 
 import torch
 
-from routine_gym.plumbing.atomic import atomic_write_bytes
-from routine_gym.plumbing.errors import UsageError
+from routine_gym.atomic import atomic_write_bytes
+from routine_gym.errors import UsageError
 
 __all__ = ["CHECKPOINT_NAME", "load_checkpoint", "resume_settings", "write_checkpoint"]
 

@@ -28,13 +28,13 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.wrappers import RecordEpisodeStatistics
 
+from routine_gym.atomic import atomic_write_text
 from routine_gym.demo import Demo, record_agent_demo
 from routine_gym.demo.collect import _policy_caller
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import default_env_kwargs, preprocess
 from routine_gym.library import RoutineLibrary
 from routine_gym.metrics import alignment_score, human_normalized_score
-from routine_gym.plumbing.atomic import atomic_write_text
 
 __all__ = ["evaluate_policy", "save_evaluation"]
 

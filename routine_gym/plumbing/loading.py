@@ -21,9 +21,9 @@ from routine_gym.demo import Demo, read_demo, shipped_demo_path
 from routine_gym.demo.minari import minari_dataset_id
 from routine_gym.envs import same_env
 from routine_gym.envs.factory import make_primitive_env
+from routine_gym.errors import UsageError
 from routine_gym.library import RoutineLibrary
 from routine_gym.mining import MAX_ROUTINE_LENGTH, make_proposer
-from routine_gym.plumbing.errors import UsageError
 
 __all__ = ["check_demo_env", "load_demo", "load_routines"]
 
@@ -112,6 +112,51 @@ def _env_actions(env_id: str, env_kwargs: dict[str, Any] | None) -> tuple[int, l
         env.close()
 
 
+def _saved_library(library_path: str, env_id: str, num_routines: int, demo: Demo | None,
+                   env_kwargs: dict[str, Any] | None) -> RoutineLibrary:
+    """The best `num_routines` of the library saved at `library_path` (all it holds, with a
+    warning, when it holds fewer), checked against `env_id`'s actions (`load_routines`)."""
+    library = RoutineLibrary.load(library_path)
+    mined_on = library.source.get("env_id")
+    if not same_env(mined_on, env_id):
+        raise UsageError(
+            f"{library_path} was mined from a demo of {mined_on}, not {env_id}"
+        )
+    if demo is not None:
+        n, meanings = demo.num_actions, list(demo.action_meanings)
+    else:
+        n, meanings = _env_actions(env_id, env_kwargs)
+    if library.action_meanings is not None and meanings is not None and list(
+        library.action_meanings
+    ) != list(meanings):
+        raise UsageError(
+            f"{library_path} has actions {list(library.action_meanings)}, "
+            f"{env_id} has {list(meanings)}: a library of another env"
+        )
+    bad = [r for r in library.routines if max(r) >= n]
+    if bad:
+        raise UsageError(
+            f"{library_path}: routine {bad[0]} uses an action outside {env_id}'s "
+            f"Discrete({n})"
+        )
+    if len(library) < num_routines:
+        warnings.warn(
+            f"{library_path} holds {len(library)} routine(s), fewer than the "
+            f"{num_routines} asked for; using {len(library)}",
+            stacklevel=3,  # load_routines's caller
+        )
+    k = min(num_routines, len(library))
+    return RoutineLibrary(
+        routines=library.routines[:k],
+        scores=library.scores[:k],
+        frequencies=library.frequencies[:k],
+        occurrences=library.occurrences[:k],
+        params=library.params,
+        source={**library.source, "path": library_path},
+        action_meanings=library.action_meanings,
+    )
+
+
 def load_routines(
     env_id: str,
     num_routines: int,
@@ -160,45 +205,7 @@ def load_routines(
     if num_routines == 0:
         return None
     if library_path is not None:
-        library = RoutineLibrary.load(library_path)
-        mined_on = library.source.get("env_id")
-        if not same_env(mined_on, env_id):
-            raise UsageError(
-                f"{library_path} was mined from a demo of {mined_on}, not {env_id}"
-            )
-        if demo is not None:
-            n, meanings = demo.num_actions, list(demo.action_meanings)
-        else:
-            n, meanings = _env_actions(env_id, env_kwargs)
-        if library.action_meanings is not None and meanings is not None and list(
-            library.action_meanings
-        ) != list(meanings):
-            raise UsageError(
-                f"{library_path} has actions {list(library.action_meanings)}, "
-                f"{env_id} has {list(meanings)}: a library of another env"
-            )
-        bad = [r for r in library.routines if max(r) >= n]
-        if bad:
-            raise UsageError(
-                f"{library_path}: routine {bad[0]} uses an action outside {env_id}'s "
-                f"Discrete({n})"
-            )
-        if len(library) < num_routines:
-            warnings.warn(
-                f"{library_path} holds {len(library)} routine(s), fewer than the "
-                f"{num_routines} asked for; using {len(library)}",
-                stacklevel=2,
-            )
-        k = min(num_routines, len(library))
-        library = RoutineLibrary(
-            routines=library.routines[:k],
-            scores=library.scores[:k],
-            frequencies=library.frequencies[:k],
-            occurrences=library.occurrences[:k],
-            params=library.params,
-            source={**library.source, "path": library_path},
-            action_meanings=library.action_meanings,
-        )
+        library = _saved_library(library_path, env_id, num_routines, demo, env_kwargs)
         where = library_path
     else:
         if demo is None:

@@ -89,7 +89,7 @@ def check_memory(nbytes: int, what: str) -> None:
     Raises:
         UsageError: `{what} needs {size}, more than the {size} of memory available`.
     """
-    from routine_gym.plumbing.errors import UsageError
+    from routine_gym.errors import UsageError
 
     available = available_memory()
     if available is not None and nbytes > available:

@@ -13,7 +13,7 @@ checkpoint holds and puts it back on `--resume` (returning the step counters),
 the `Args` as JSON, and the training film's episode count, so a resumed `--capture-video` run
 goes on numbering its films), and `run.finish(policy, ...)` saves the last checkpoint and the model,
 evaluates (`eval.json`, `--extra-evals`), records `--record-demo` and closes the writer; files
-go through the one atomic writer of `routine_gym.plumbing.atomic`. A checkpoint is never
+go through the one atomic writer of `routine_gym.atomic`. A checkpoint is never
 written, nor the model evaluated, once a parameter or an optimizer state is not finite: the run
 stops with one line and exit code 1 (`routine_gym.plumbing.divergence`). With `--track` the writer's
 scalars also go to Weights & Biases (`routine_gym.plumbing.tracking`), and the W&B run id
@@ -39,8 +39,9 @@ from typing import Any
 import numpy as np
 import torch
 
+from routine_gym.atomic import atomic_write_bytes, check_folder, check_writable
+from routine_gym.errors import UsageError
 from routine_gym.plumbing.arguments import ExtraChecks, check_args, given_flags, parse_args
-from routine_gym.plumbing.atomic import atomic_write_bytes, check_folder, check_writable
 from routine_gym.plumbing.checkpoint import CHECKPOINT_NAME, resume_settings, write_checkpoint
 from routine_gym.plumbing.divergence import (
     EXIT_CODE,
@@ -48,7 +49,6 @@ from routine_gym.plumbing.divergence import (
     as_divergence,
     check_parameters,
 )
-from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.memory import keep_freed_memory
 from routine_gym.plumbing.rng import rng_state, set_rng_state
 from routine_gym.plumbing.seeds import demo_seed, eval_seed, stride_checks
@@ -69,10 +69,10 @@ __all__ = [
 def run_script(main: Callable[[Any], Any], args_type: type,
                renamed: dict[str, str] | None = None) -> None:
     """A script's entry point: parse its flags and run `main`, reporting a user's mistakes
-    (`routine_gym.plumbing.errors`) as one line on stderr with exit code 2; `--debug` (or
+    (`routine_gym.errors`) as one line on stderr with exit code 2; `--debug` (or
     `ROUTINE_GYM_DEBUG=1`) shows their traceback instead. A bug keeps its traceback."""
     from routine_gym.envs import quiet_ale
-    from routine_gym.plumbing.errors import debug_requested, expected_errors, one_line
+    from routine_gym.errors import debug_requested, expected_errors, one_line
 
     quiet_ale()
     argv = sys.argv[1:]

@@ -27,7 +27,7 @@ from dataclasses import asdict
 from types import ModuleType
 from typing import Any
 
-from routine_gym.plumbing.errors import UsageError
+from routine_gym.errors import UsageError
 
 __all__ = ["INSTALL_HINT", "STEP_METRIC", "WandbScalars", "import_wandb", "start_tracking"]
 

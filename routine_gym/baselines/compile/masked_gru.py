@@ -46,7 +46,7 @@ import os
 import torch
 
 from routine_gym import _native
-from routine_gym.plumbing.errors import UsageError
+from routine_gym.errors import UsageError
 
 __all__ = ["gru_choice", "masked_gru"]
 

@@ -21,6 +21,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from routine_gym.atomic import atomic_write_bytes
 from routine_gym.baselines.compile.elbo import (
     EPS,
     NEG_INF,
@@ -32,7 +33,6 @@ from routine_gym.baselines.compile.elbo import (
 )
 from routine_gym.baselines.compile.masked_gru import masked_gru
 from routine_gym.networks import ObservationEncoder, layer_init
-from routine_gym.plumbing.atomic import atomic_write_bytes
 
 __all__ = [
     "CompILE",

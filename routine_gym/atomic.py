@@ -21,7 +21,7 @@ import secrets
 import stat
 from collections.abc import Iterable
 
-from routine_gym.plumbing.errors import UsageError
+from routine_gym.errors import UsageError
 
 __all__ = [
     "atomic_write_bytes",
