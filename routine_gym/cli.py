@@ -79,9 +79,9 @@ def cmd_mine(args: argparse.Namespace) -> int:
     _needs("--seed", args.seed, args.seed >= 0, "≥ 0")
     _needs("--max-routine-length", args.max_routine_length, args.max_routine_length >= 2, "≥ 2")
     _needs("--selection", args.selection, args.selection in SELECTIONS, " or ".join(SELECTIONS))
-    if args.out:
+    if args.out is not None:  # `--out ""` is refused, not taken as no --out
         _not_an_input(args.out, "--out", args.demo)
-        check_writable(args.out, "--out")
+        check_writable(args.out, "--out", ".json")
     demo = _load_demo(args.demo)
     proposer = make_proposer(
         args.proposer,
@@ -104,7 +104,7 @@ def cmd_mine(args: argparse.Namespace) -> int:
         f"{len(demo.actions)} actions, score {demo.score:g})"
     )
     print(library.describe())
-    if args.out:
+    if args.out is not None:
         library.save(args.out)
         print(f"saved to {args.out}")
     return 0
@@ -165,7 +165,7 @@ def cmd_upgrade(args: argparse.Namespace) -> int:
         raise CLIError(f"upgrade rewrites a version-1 demo file; {args.demo} is a Minari "
                        "dataset, not a file")
     out = args.out or args.demo  # in place by default: only a verified replay replaces it
-    check_writable(out, "--out")
+    check_writable(out, "--out", ".npz" if args.out else None)  # in place: the input's name
     demo = _load_demo(args.demo)
     version = _file_version(Path(args.demo))
     if version >= DEMO_VERSION:
@@ -255,7 +255,7 @@ def cmd_picture(args: argparse.Namespace) -> int:
 
     _needs("--num-routines", args.num_routines, args.num_routines >= 1, "≥ 1")
     _not_an_input(args.out, "--out", args.source)
-    check_writable(args.out, "--out")
+    check_writable(args.out, "--out", ".png")
     if minari_dataset_id(args.source) is None and Path(args.source).is_dir():
         if args.routines is not None:
             raise CLIError(f"--routines names a demo's routines; {args.source} is a run folder, "
@@ -347,7 +347,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     if args.expert_noise and args.policy != "expert":
         raise CLIError(f"--expert-noise is the scripted expert's noise; --policy {args.policy} "
                        "takes none (use --policy expert, or drop --expert-noise)")
-    check_writable(args.out, "--out")  # before recording: no run for an output that fails
+    check_writable(args.out, "--out", ".npz")  # before recording: no run for an output that fails
     from routine_gym.demo import record_agent_demo
     from routine_gym.envs.factory import default_env_kwargs
 
@@ -381,7 +381,7 @@ def cmd_play(args: argparse.Namespace) -> int:
         _needs("--fps", args.fps, args.fps >= 1, "≥ 1")
     if args.zoom is not None:
         _needs("--zoom", args.zoom, args.zoom > 0, "> 0")
-    check_writable(args.out, "--out")  # before anyone plays a session for nothing
+    check_writable(args.out, "--out", ".npz")  # before anyone plays a session for nothing
     if not _has_display():
         raise CLIError("play needs a display to show the game and read the keyboard, and none "
                        "is set (DISPLAY or WAYLAND_DISPLAY); record an agent with "

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from routine_gym.experiments import os_problem, utc_now
+from routine_gym.plumbing.atomic import check_name
 from routine_gym.plumbing.errors import UsageError
 
 __all__ = ["LOCK_FILE", "lock_holder", "sweep_folder", "sweep_lock"]
@@ -39,6 +40,7 @@ def sweep_folder(out: str | os.PathLike) -> Path:
     text = os.fspath(out)
     if not str(text).strip():
         raise UsageError("--out needs a folder, actual value: ''")
+    check_name(text, "--out")  # minari:ID, xyz:...
     path = Path(os.path.abspath(text))
     for place in (path / "runs", *(path / "runs").parents):
         if place.exists() or place.is_symlink():

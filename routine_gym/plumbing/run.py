@@ -392,7 +392,7 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
         preset(args)
     check_args(args, extra_checks)
     if getattr(args, "record_demo", None):
-        check_writable(args.record_demo, "--record-demo")  # before training, not after
+        check_writable(args.record_demo, "--record-demo", ".npz")  # before training, not after
     saved_budget = None
     if args.resume:
         args, checkpoint, path = resume_settings(args, checkpoint_keys, script,
