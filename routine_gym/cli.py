@@ -254,6 +254,8 @@ def cmd_picture(args: argparse.Namespace) -> int:
     from routine_gym.plumbing.atomic import check_writable
 
     _needs("--num-routines", args.num_routines, args.num_routines >= 1, "≥ 1")
+    _needs("--max-routines", args.max_routines, 1 <= args.max_routines <= 1000,
+           "in [1, 1000]")
     _not_an_input(args.out, "--out", args.source)
     check_writable(args.out, "--out", ".png")
     if minari_dataset_id(args.source) is None and Path(args.source).is_dir():
@@ -277,6 +279,8 @@ def cmd_picture(args: argparse.Namespace) -> int:
             library = SequiturMiner(num_routines=args.num_routines).mine(demo)
         for w in caught:
             print(f"warning: {w.message}", file=sys.stderr)
+    total = len(library)
+    library = pictures.top_routines(library, args.max_routines) if total else library
     picture = pictures.routine_picture(demo, library, source=args.source)
     pictures.save_png(pictures.draw_routine_picture(picture), args.out)
     frames = ("the demo's observations" if picture.replayed_steps == 0 else
@@ -284,6 +288,9 @@ def cmd_picture(args: argparse.Namespace) -> int:
     print(f"wrote {args.out}: {len(picture.films)} routine(s) of {picture.env_id} "
           f"({args.source}), frames from {frames}")
     print(pictures.describe_picture(picture))
+    if len(library) < total:
+        print(f"drew {len(library)} of {total} routines (the best by score); --max-routines "
+              "to change")
     return 0
 
 
