@@ -501,6 +501,10 @@ def cmd_experiment_run(args: argparse.Namespace) -> int:
         raise CLIError(f"{flag} names where --track logs: it needs --track")
     check_options(args.backend, args.jobs, args.cpus_per_run, args.address,
                   track=args.track)
+    if tracking is not None:  # before any run: a bad project would fail every one of them
+        from routine_gym.plumbing.tracking import check_tracking
+
+        check_tracking(tracking["project"], tracking["entity"])
     chosen = plan(args.name, args.budget, args.seeds, args.envs)
     install_signal_handlers()
     failed = 0
@@ -534,7 +538,7 @@ def cmd_experiment_report(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     from routine_gym.envs import quiet_ale
-    from routine_gym.plumbing.errors import debug_requested, one_line
+    from routine_gym.plumbing.errors import DISK_FULL_EXIT, debug_requested, disk_full, one_line
 
     quiet_ale()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -547,6 +551,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         if debug:
             raise
         parser.exit(2, f"routine-gym: error: {one_line(exc)}\n")
+    except OSError as exc:
+        line = disk_full(exc)
+        if line is None or debug:
+            raise
+        parser.exit(DISK_FULL_EXIT, f"routine-gym: error: {line}\n")
     except Exception as exc:
         # gymnasium's own errors (an unknown env id, ...) are user errors too; if gymnasium was
         # never imported, the exception cannot be one of them.

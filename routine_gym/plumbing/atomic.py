@@ -18,6 +18,7 @@ names a Minari dataset, `minari:ID`, or starts with another scheme, `xyz:`), and
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import re
 import secrets
@@ -209,7 +210,10 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+        if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            # A write's error names no file: name the target, for the one-line report.
+            raise OSError(exc.errno, exc.strerror, path) from exc
         raise

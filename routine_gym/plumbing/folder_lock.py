@@ -103,8 +103,12 @@ def hold_folder(folder: str | os.PathLike, *, what: str, named: str,
     info = {"pid": os.getpid(), "host": socket.gethostname(),
             "started": datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
             "command": command or shlex.join(sys.argv)}
-    os.ftruncate(fd, 0)
-    os.pwrite(fd, (json.dumps(info) + "\n").encode(), 0)
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, (json.dumps(info) + "\n").encode(), 0)
+    except OSError as exc:  # a full disk: named, and the lock dropped
+        os.close(fd)
+        raise OSError(exc.errno, exc.strerror, str(lock)) from exc
     entry = [fd, 1]
     with _HELD_GUARD:
         _HELD[real] = entry

@@ -63,7 +63,13 @@ def run_script(main: Callable[[Any], Any], args_type: type,
     (`routine_gym.plumbing.errors`) as one line on stderr with exit code 2; `--debug` (or
     `ROUTINE_GYM_DEBUG=1`) shows their traceback instead. A bug keeps its traceback."""
     from routine_gym.envs import quiet_ale
-    from routine_gym.plumbing.errors import debug_requested, expected_errors, one_line
+    from routine_gym.plumbing.errors import (
+        DISK_FULL_EXIT,
+        debug_requested,
+        disk_full,
+        expected_errors,
+        one_line,
+    )
 
     quiet_ale()
     argv = sys.argv[1:]
@@ -79,6 +85,17 @@ def run_script(main: Callable[[Any], Any], args_type: type,
             raise
         print(f"{script}: error: {one_line(exc)}", file=sys.stderr)
         raise SystemExit(2) from None
+    except OSError as exc:
+        line = disk_full(exc)
+        if line is None or debug:
+            raise
+        for run in _NEW_RUNS:  # a new run that wrote nothing but its first events
+            with contextlib.suppress(OSError):
+                _remove_failed_run(run)
+        with contextlib.suppress(OSError):
+            _end_tracking(exit_code=DISK_FULL_EXIT)
+        print(f"{script}: error: {line}", file=sys.stderr)
+        raise SystemExit(DISK_FULL_EXIT) from None
 
 
 # -- the run ----------------------------------------------------------------------------------
@@ -533,11 +550,12 @@ def _check_demo_source(args: Any) -> None:
 
 
 def _check_tracking(args: Any) -> None:
-    """`--track` without wandb installed: a one-line error before the run's folder is made."""
+    """`--track` without wandb installed, with a project W&B refuses or without W&B
+    credentials (`check_tracking`): a one-line error before the run's folder is made."""
     if getattr(args, "track", False):
-        from routine_gym.plumbing.tracking import import_wandb
+        from routine_gym.plumbing.tracking import check_tracking
 
-        import_wandb()
+        check_tracking(args.wandb_project_name, args.wandb_entity)
 
 
 def _end_tracking(exit_code: int) -> None:
