@@ -292,6 +292,7 @@ def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
              "paper unless --mode rapl"),
             ("prim_states", rapl_only or args.prim_states == "inside",
              "inside unless --mode rapl"),
+            ("prim_coef", rapl_only or args.prim_coef == 1.0, "1.0 unless --mode rapl"),
             # A routine flag a run would not read: every one with --mode a2c, the mining
             # flags and --demo with --routine-library.
             *unused_routine_flags(args, "--mode a2c" if args.mode == "a2c" else None)]

@@ -276,6 +276,8 @@ def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
             ("prim_epochs", args.prim_epochs is None or args.update_epochs is None
              or args.prim_epochs <= args.update_epochs,
              f"≤ --update-epochs ({args.update_epochs})"),
+            ("prim_coef", args.mode == "rapl" or args.prim_coef == 1.0,
+             "1.0 unless --mode rapl"),
             # A routine flag a run would not read: every one with --mode ppo, the mining
             # flags and --demo with --routine-library.
             *unused_routine_flags(args, "--mode ppo" if args.mode == "ppo" else None)]

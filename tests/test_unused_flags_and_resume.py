@@ -55,6 +55,15 @@ def test_every_routine_flag_is_refused_where_the_run_has_no_routines(name):
     assert checked == len((fields & OTHER.keys()) - read) >= 5
 
 
+@pytest.mark.parametrize(("name", "mode"), [("rapl_a2c", "a2c"), ("rapl_a2c", "macro"),
+                                          ("rapl_ppo", "ppo"), ("rapl_ppo", "macro")])
+def test_the_primitive_value_loss_coefficient_is_refused_outside_rapl(name, mode):
+    # λ_prim weighs the value loss of the states inside routines: only RAPL trains them.
+    assert _refusal(name, mode="rapl", prim_coef=0.5) is None
+    assert _refusal(name, mode=mode, prim_coef=0.5) == (
+        "--prim-coef needs to be 1.0 unless --mode rapl, actual value: 0.5")
+
+
 @pytest.mark.parametrize("name", ["rapl_a2c", "rapl_ppo", "rapl_sqil"])
 def test_mining_flags_are_refused_with_a_routine_library(name):
     fields = {f.name for f in dataclasses.fields(load_script(name).Args)}
