@@ -164,8 +164,10 @@ def cmd_upgrade(args: argparse.Namespace) -> int:
     if minari_dataset_id(args.demo) is not None:
         raise CLIError(f"upgrade rewrites a version-1 demo file; {args.demo} is a Minari "
                        "dataset, not a file")
-    out = args.out or args.demo  # in place by default: only a verified replay replaces it
-    check_writable(out, "--out", ".npz" if args.out else None)  # in place: the input's name
+    # In place by default: only a verified replay replaces it. `--out ""` is refused, not
+    # taken as no --out.
+    out = args.demo if args.out is None else args.out
+    check_writable(out, "--out", None if args.out is None else ".npz")  # in place: its name
     demo = _load_demo(args.demo)
     version = _file_version(Path(args.demo))
     if version >= DEMO_VERSION:

@@ -94,6 +94,12 @@ def test_mine_refuses_every_kind_of_unintended_output_name(out, message, tmp_pat
     assert os.listdir(tmp_path) == ["folder"]
 
 
+def test_an_empty_output_is_refused_where_no_output_means_a_default(tmp_path):
+    # upgrade rewrites its demo in place without --out; `--out ""` is no way of saying so.
+    proc = user("routine-gym", "upgrade", DEMO, "--out", "", cwd=tmp_path)
+    assert_one_line_error(proc, "--out needs a path, actual value: ''")
+
+
 def test_a_file_of_a_scheme_like_name_is_written_when_asked_as_a_local_path(tmp_path):
     proc = user("routine-gym", "mine", DEMO, "--out", "./minari:mine.json", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
