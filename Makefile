@@ -1,8 +1,15 @@
 # `make test` and `make run` each create .venv when missing and install the project into it.
+# Afterwards: `. .venv/bin/activate`, or call `.venv/bin/routine-gym` and `.venv/bin/python`.
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+# torch's CPU build comes first, from PyTorch's CPU wheel index beside the default index (the
+# default index's Linux torch pulls CUDA, about 6 GB; the CPU build's version, 2.13.0+cpu, sorts
+# above it, and torch's own dependencies come from the default index). Where the CPU index cannot
+# be reached, torch comes from the default index; `make TORCH_INDEX=` skips the CPU index.
+TORCH_VERSION := 2.13.0
+TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 
 .PHONY: test run lint bench clean
 
@@ -11,6 +18,12 @@ $(STAMP): pyproject.toml setup.py routine_gym/_sequitur.cpp routine_gym/_minatar
 		routine_gym/_pybuffers.h routine_gym/_wrapper_core.cpp
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
+	@if [ -n "$(TORCH_INDEX)" ]; then \
+		echo "$(PY) -m pip install torch==$(TORCH_VERSION) --extra-index-url $(TORCH_INDEX)"; \
+		$(PY) -m pip install --quiet --retries 1 --timeout 20 "torch==$(TORCH_VERSION)" \
+			--extra-index-url "$(TORCH_INDEX)" \
+		|| echo "make: $(TORCH_INDEX) could not be used; torch comes from the default index"; \
+	fi
 	$(PY) -m pip install --quiet -e ".[dev]"
 	touch $(STAMP)
 

@@ -33,7 +33,9 @@ from torch.distributions.categorical import Categorical
 import routine_gym
 from routine_gym.imitation import agent_view_states, demo_pairs
 from routine_gym.networks import ObservationEncoder, layer_init
+from routine_gym.plumbing.divergence import check_update
 from routine_gym.plumbing.loading import check_demo_env, load_demo
+from routine_gym.plumbing.memory import check_memory
 from routine_gym.plumbing.run import run_script, start_run
 
 
@@ -111,6 +113,8 @@ def main(args: Args) -> dict | None:
     demo, args.demo = load_demo(args.env_id, args.demo)
     num_actions = check_demo_env(demo, args.env_id)
     pairs = demo_pairs(demo, agent_view_states(demo, args.env_id))
+    check_memory(args.batch_size * pairs.observations[0].nbytes,
+                 f"a batch (--batch-size {args.batch_size:,} × {pairs.observations[0].nbytes:,} B)")
     states = torch.as_tensor(pairs.observations, device=device)
     actions = torch.as_tensor(pairs.actions, device=device)
     print(f"demo {args.demo}: score {demo.score:g}, {len(pairs)} (state, action) pairs",
@@ -129,6 +133,7 @@ def main(args: Args) -> dict | None:
         loss = F.cross_entropy(logits, actions[i])
         optimizer.zero_grad()
         loss.backward()
+        check_update(step, loss, parts={"BC loss": loss}, unit="gradient step")
         optimizer.step()
         sps = int((step - start_step) / max(time.time() - start_time, 1e-9))
         if step % 100 == 0 or step == args.gradient_steps:

@@ -78,8 +78,10 @@ from routine_gym.envs.factory import make_env
 from routine_gym.imitation.agent_view import agent_view_states, decision_steps
 from routine_gym.networks import ObservationEncoder, categorical_policy, layer_init
 from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent
+from routine_gym.plumbing.divergence import check_update
 from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.loading import load_demo
+from routine_gym.plumbing.memory import check_rollout_memory
 from routine_gym.plumbing.run import Every, eval_env_kwargs, run_script, start_run, train_env_kwargs
 from routine_gym.returns import decision_returns, macro_reward_and_discount
 from routine_gym.wrapper import merge_final
@@ -125,9 +127,10 @@ class Args:
     """decisions per environment per rollout (N)"""
     gamma: float = 0.99
     """the discount factor γ, once per decision (MacroAction)"""
-    reward_scale: float = 1.0
-    """multiply each primitive reward by this for learning (after Atari's sign clipping); the
-    logged returns stay the game's score"""
+    reward_scale: float | None = None
+    """multiply each reward by this for learning (after Atari's sign clipping); the logged
+    returns stay the game's score. Unset: the env profile's scale (MiniQbert 0.01, its 25- and
+    100-point rewards swamp the value loss at 1; every other env 1)"""
     ent_coef: float = 0.01
     """coefficient of the entropy bonus (λ_entropy)"""
     vf_coef: float = 0.5
@@ -216,11 +219,20 @@ CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "decisions"
                    "compile")
 
 
+#: The upper bound of CompILE's size flags (codes, segments, window, hidden units, batch).
+COMPILE_MAX_SIZE = 4096
+
+
 def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
     """The CompILE flags' domains (the shared ones are in `plumbing.arguments.DOMAINS`)."""
     at_least_1 = ("num_options", "compile_latents", "compile_segments", "compile_window",
                   "compile_hidden", "compile_iterations", "compile_batch_size")
     checks = [(name, getattr(args, name) >= 1, "≥ 1") for name in at_least_1]
+    # The sizes the model's memory follows from (windows × decisions × hidden units): capped
+    # far above the paper's (8 codes, 32 decisions, 128 units, 16 windows).
+    checks += [(name, getattr(args, name) <= COMPILE_MAX_SIZE, f"≤ {COMPILE_MAX_SIZE:,}")
+               for name in ("compile_latents", "compile_segments", "compile_window",
+                            "compile_hidden", "compile_batch_size")]
     checks.append(("compile_option_steps", args.compile_option_steps >= 0, "≥ 0"))
     checks.append(("compile_prior_rate", args.compile_prior_rate > 0, "> 0"))
     checks.append(("compile_learning_rate", args.compile_learning_rate > 0, "> 0"))
@@ -289,7 +301,7 @@ def main(args: Args) -> dict | None:
     def thunk(i: int):
         return make_env(args.env_id, args.seed, i, training=True,
                         env_kwargs=train_env_kwargs(args), capture_video=args.capture_video,
-                        run_name=run.name)
+                        run_name=run.name, first_video_episode=run.first_video_episode)
 
     probe = make_env(args.env_id, args.seed, 0, training=True, env_kwargs=train_env_kwargs(args))()
     obs_space, num_primitives = probe.observation_space, int(probe.action_space.n)
@@ -331,6 +343,8 @@ def main(args: Args) -> dict | None:
 
     # Rollout storage, time-major: [decision, env] and [decision, step in option, env].
     n, e = args.num_steps, args.num_envs
+    check_rollout_memory(envs.single_observation_space, n, e, observations=0,
+                         numbers=4 + max_len)  # the observations are the acting graph's
     step_rewards = np.zeros((n, max_len, e), dtype=np.float64)
     lengths = np.ones((n, e), dtype=np.int64)
     terminated = np.zeros((n, e), dtype=bool)
@@ -341,7 +355,7 @@ def main(args: Args) -> dict | None:
     # checkpoint left off.
     global_step, iteration, decisions = run.resume(
         {"model": agent, "optimizer": optimizer}, global_step=0, iteration=0, decisions=0,
-        count="decisions" if args.budget_unit == "decisions" else "global_step",
+        count="decisions" if args.budget_unit == "decisions" else "global_step", filmed=envs,
         extra={"compile": compile_state(compile_model, meta)})
 
     # The env is reset with a seed that depends on where the run is, so a resumed run does not
@@ -414,7 +428,9 @@ def main(args: Args) -> dict | None:
         loss = pg_loss - args.ent_coef * entropy_loss + args.vf_coef * v_loss
         optimizer.zero_grad()
         loss.backward()
-        nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+        grad_norm = nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+        check_update(global_step, loss, grad_norm, parts={
+            "value loss": v_loss, "policy loss": pg_loss, "entropy": entropy_loss})
         optimizer.step()
 
         elapsed = max(time.time() - start_time, 1e-9)

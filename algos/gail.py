@@ -44,7 +44,9 @@ import routine_gym
 from routine_gym.envs.factory import make_env
 from routine_gym.imitation import agent_view_states, demo_pairs
 from routine_gym.networks import ObservationEncoder, layer_init
+from routine_gym.plumbing.divergence import check_update
 from routine_gym.plumbing.loading import check_demo_env, load_demo
+from routine_gym.plumbing.memory import check_rollout_memory
 from routine_gym.plumbing.run import Every, run_script, start_run
 
 
@@ -197,6 +199,7 @@ def main(args: Args) -> dict | None:
     batch_size = args.num_envs * args.num_steps
     minibatch_size = max(batch_size // args.num_minibatches, 1)
     num_iterations = max(args.total_timesteps // batch_size, 1)
+    check_rollout_memory(obs_space, args.num_steps, args.num_envs, observations=2, numbers=6)
     obs = torch.zeros((args.num_steps, args.num_envs, *obs_space.shape),
                       dtype=torch.as_tensor(obs_space.sample()).dtype, device=device)
     actions = torch.zeros((args.num_steps, args.num_envs), dtype=torch.long, device=device)
@@ -261,6 +264,7 @@ def main(args: Args) -> dict | None:
                 ) + F.binary_cross_entropy_with_logits(agent_logits, torch.zeros_like(agent_logits))
                 disc_optimizer.zero_grad()
                 disc_loss.backward()
+                check_update(global_step, disc_loss, parts={"discriminator loss": disc_loss})
                 disc_optimizer.step()
 
         # The generator's rewards from the updated discriminator.
@@ -328,7 +332,9 @@ def main(args: Args) -> dict | None:
                 loss = pg_loss - args.ent_coef * entropy_loss + v_loss * args.vf_coef
                 optimizer.zero_grad()
                 loss.backward()
-                nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+                grad_norm = nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+                check_update(global_step, loss, grad_norm, parts={
+                    "value loss": v_loss, "policy loss": pg_loss, "entropy": entropy_loss})
                 optimizer.step()
 
         sps = int((global_step - start_step) / max(time.time() - start_time, 1e-9))

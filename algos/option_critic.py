@@ -51,6 +51,8 @@ from routine_gym.baselines.option_critic import (
 from routine_gym.envs.factory import make_vector_env
 from routine_gym.networks import ObservationEncoder, layer_init
 from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent
+from routine_gym.plumbing.divergence import check_update
+from routine_gym.plumbing.memory import check_rollout_memory
 from routine_gym.plumbing.run import Every, eval_env_kwargs, run_script, start_run, train_env_kwargs
 
 
@@ -90,8 +92,10 @@ class Args:
     """steps per environment per rollout (N)"""
     gamma: float = 0.99
     """the discount factor γ"""
-    reward_scale: float = 1.0
-    """multiply each reward by this for learning (after Atari's sign clipping)"""
+    reward_scale: float | None = None
+    """multiply each reward by this for learning (after Atari's sign clipping); the logged
+    returns stay the game's score. Unset: the env profile's scale (MiniQbert 0.01, its 25- and
+    100-point rewards swamp the value loss at 1; every other env 1)"""
     num_options: int = 4
     """the number of options"""
     option_epsilon: float = 0.1
@@ -163,10 +167,16 @@ class Agent(nn.Module):
 CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "iteration", "decisions", "rng", "args")
 
 
+#: The upper bound of --num-options.
+MAX_OPTIONS = 1024
+
+
 def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
     """The option-critic flags' domains (the shared ones are in `plumbing.arguments.DOMAINS`)."""
     return [
         ("num_options", args.num_options >= 1, "≥ 1"),
+        # Heads of num_options × actions outputs: far above the paper's 4 or 8.
+        ("num_options", args.num_options <= MAX_OPTIONS, f"≤ {MAX_OPTIONS:,}"),
         ("option_epsilon", 0 <= args.option_epsilon <= 1, "in [0, 1]"),
         # A cost: a negative one would pay the agent for switching options.
         ("deliberation_cost", args.deliberation_cost >= 0, "≥ 0"),
@@ -201,6 +211,7 @@ def main(args: Args) -> dict | None:
     logs = Every(args.log_every, start=budget_spent(args.budget_unit, global_step, decisions))
     counts = Counters(writer, 0, args.num_options)
     n, e = args.num_steps, args.num_envs
+    check_rollout_memory(envs.single_observation_space, n, e, observations=0, numbers=4)
     rewards = np.zeros((n, e), dtype=np.float64)
     dones = np.zeros((n, e), dtype=bool)
     arrival = np.zeros((n, e), dtype=bool)  # s_{t+1} continues the episode of s_t
@@ -297,7 +308,10 @@ def main(args: Args) -> dict | None:
             + args.term_coef * term_loss
         optimizer.zero_grad()
         loss.backward()
-        nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+        grad_norm = nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+        check_update(global_step, loss, grad_norm, parts={
+            "value loss": v_loss, "policy loss": pg_loss, "termination loss": term_loss,
+            "entropy": entropy_loss})  # stop before a non-finite update is applied
         optimizer.step()
 
         elapsed = max(time.time() - start_time, 1e-9)

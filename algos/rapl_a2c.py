@@ -55,8 +55,10 @@ from routine_gym.networks import (
 )
 from routine_gym.plumbing.arguments import given_flags
 from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent
+from routine_gym.plumbing.divergence import check_update
 from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.loading import unused_routine_flags
+from routine_gym.plumbing.memory import check_rollout_memory
 from routine_gym.plumbing.run import (
     Every,
     eval_env_kwargs,
@@ -65,6 +67,7 @@ from routine_gym.plumbing.run import (
     start_run,
     train_env_kwargs,
 )
+from routine_gym.plumbing.seeds import train_seed
 from routine_gym.returns import (
     critic_loss,
     decision_returns,
@@ -85,6 +88,10 @@ class Args:
     """the name of this experiment"""
     seed: int = 1
     """seed of the experiment"""
+    seed_stride: int = 1
+    """env seeds: 1 resets training env i with seed + i (experiment seeds then share env seeds);
+    S ≥ 4 gives each seed its own block [seed·S, (seed+1)·S) of env seeds
+    (`routine_gym.plumbing.seeds`)"""
     torch_deterministic: bool = True
     """if toggled, `torch.backends.cudnn.deterministic=True`"""
     cuda: bool = False
@@ -118,13 +125,18 @@ class Args:
     num_envs: int = 16
     """the number of parallel environments"""
     num_steps: int = 5
-    """decisions per environment per rollout (N)"""
+    """decisions per environment per rollout (N); with --rollout-unit steps, primitive steps"""
+    rollout_unit: Literal["decisions", "steps"] = "decisions"
+    """what --num-steps counts: decisions (the paper: a rollout holds N decisions per env, each
+    running 1 to ℓ primitive steps), or primitive steps (a rollout ends as soon as its decisions
+    ran N·num_envs primitive steps in all (to the nearest vector step, counted over the whole
+    run), so RAPL and MacroAction make as many updates as A2C on as many frames)"""
     gamma: float = 0.99
     """the discount factor γ per primitive step"""
-    reward_scale: float = 1.0
-    """multiply each primitive reward by this for learning (after Atari's sign clipping); the
-    logged returns stay the game's score. Large rewards (MiniQbert's 25 and 100) train better
-    at 0.01"""
+    reward_scale: float | None = None
+    """multiply each reward by this for learning (after Atari's sign clipping); the logged
+    returns stay the game's score. Unset: the env profile's scale (MiniQbert 0.01, its 25- and
+    100-point rewards swamp the value loss at 1; every other env 1)"""
     ent_coef: float = 0.01
     """coefficient of the entropy bonus (λ_entropy)"""
     vf_coef: float = 0.5
@@ -292,6 +304,11 @@ def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
              "paper unless --mode rapl"),
             ("prim_states", rapl_only or args.prim_states == "inside",
              "inside unless --mode rapl"),
+            ("rollout_unit", args.rollout_unit == "decisions" or args.prim_states == "inside",
+             "decisions with --prim-states first-n (its N primitive steps per env need N "
+             "decisions per env)"),
+            ("rollout_unit", args.rollout_unit == "decisions" or args.budget_unit == "steps",
+             "decisions with --budget-unit decisions (steps sizes rollouts in primitive steps)"),
             ("prim_coef", rapl_only or args.prim_coef == 1.0, "1.0 unless --mode rapl"),
             # A routine flag a run would not read: every one with --mode a2c, the mining
             # flags and --demo with --routine-library.
@@ -328,7 +345,8 @@ def main(args: Args) -> None:
     envs = make_vector_env(args.env_id, args.num_envs, args.seed, routines=library,
                            training=True, record_observations=args.mode == "rapl",
                            env_kwargs=train_env_kwargs(args), capture_video=args.capture_video,
-                           run_name=run.name, async_envs=args.async_envs)
+                           run_name=run.name, first_video_episode=run.first_video_episode,
+                           async_envs=args.async_envs)
     assert isinstance(envs.single_action_space, gym.spaces.Discrete), "only discrete actions"
     num_actions = int(envs.single_action_space.n)
     num_routines = len(library) if library is not None else 0
@@ -344,6 +362,9 @@ def main(args: Args) -> None:
     n, e = args.num_steps, args.num_envs
     obs_shape = envs.single_observation_space.shape
     obs_dtype = envs.single_observation_space.dtype
+    # The storage below, refused now when it cannot fit (--num-steps, --num-envs, the routines).
+    check_rollout_memory(envs.single_observation_space, n, e,
+                         observations=1 + max(max_len - 1, 1), numbers=5 + max_len)
     actions = np.zeros((n, e), dtype=np.int64)
     step_rewards = np.zeros((n, max_len, e), dtype=np.float64)
     lengths = np.ones((n, e), dtype=np.int64)
@@ -360,17 +381,18 @@ def main(args: Args) -> None:
     rollout_obs = np.zeros((n + 1, e, *obs_shape), dtype=obs_dtype)  # + the state after it
     a2c_discounts = np.full((n, e), args.gamma)
     decision_obs = rollout_obs[:n]
+    steps_sized = args.rollout_unit == "steps" and args.mode != "a2c"  # A2C: the same rollout
 
     # What a checkpoint holds; a resumed run starts where its checkpoint left off.
     # --budget-unit decisions: the budget, the schedule and --checkpoint-every count decisions.
     global_step, iteration, decisions = run.resume(
         {"model": agent, "optimizer": optimizer}, global_step=0, iteration=0, decisions=0,
-        count="decisions" if args.budget_unit == "decisions" else "global_step",
+        count="decisions" if args.budget_unit == "decisions" else "global_step", filmed=envs,
         extra={"library": json.dumps(library.to_dict()) if library is not None else ""})
 
     # The env is reset with a seed that depends on where the run is, so a resumed run does not
     # replay the episodes it already saw.
-    next_obs, _ = envs.reset(seed=args.seed + global_step)
+    next_obs, _ = envs.reset(seed=train_seed(args.seed, args.seed_stride, global_step))
     start_time, start_step, start_decisions = time.time(), global_step, decisions
     logs = Every(args.log_every, start=budget_spent(args.budget_unit, global_step, decisions))
     routine_counts = np.zeros(num_actions, dtype=np.int64)
@@ -420,7 +442,8 @@ def main(args: Args) -> None:
                     v = agent.get_value(torch.as_tensor(final_obs, device=device))
                 final_values[step, trunc] = v.cpu().numpy()
 
-            global_step += e if args.mode == "a2c" else int(lengths[step].sum())
+            ran = e if args.mode == "a2c" else int(lengths[step].sum())
+            global_step += ran
             decisions += e
             if ended and "episode" in info["final_info"]:
                 final = info["final_info"]
@@ -429,44 +452,50 @@ def main(args: Args) -> None:
                     recent_returns.append(ret)
                     writer.add_scalar("charts/episodic_return", ret, global_step)
                     writer.add_scalar("charts/episodic_length", length, global_step)
+            # Rounded to the nearest vector step, and against the run's whole count, so that
+            # U updates have seen U·N·num_envs primitive steps (± half a vector step).
+            if steps_sized and global_step + ran / 2 >= iteration * n * e:
+                break
 
-        chosen = np.bincount(actions.reshape(-1), minlength=num_actions)  # the rollout's choices
+        # The rollout's d decisions per env (n unless --rollout-unit steps ended it early).
+        d = step + 1
+        acts, rews, lens = actions[:d], step_rewards[:d], lengths[:d]
+        terms, truncs, finals = terminated[:d], truncated[:d], final_values[:d]
+        chosen = np.bincount(acts.reshape(-1), minlength=num_actions)  # the rollout's choices
         routine_counts += chosen
-        counts.add_counts(chosen, int(lengths.sum()))
+        counts.add_counts(chosen, int(lens.sum()))
 
         # Returns. RAPL: discounted routine reward and γ^ℓ; MacroAction: summed reward and one γ
         # per decision; A2C: a decision's one reward and γ (both others' numbers, with ℓ = 1).
         if args.mode == "a2c":
-            rewards, discounts = step_rewards[:, 0], a2c_discounts
+            rewards, discounts = rews[:, 0], a2c_discounts[:d]
         elif args.mode == "rapl":
-            rewards, discounts = routine_reward_and_discount(step_rewards, lengths, args.gamma)
+            rewards, discounts = routine_reward_and_discount(rews, lens, args.gamma)
             if args.routine_discount == "authors":
-                discounts = routine_discount_minus_one(lengths, actions >= num_primitives,
-                                                       args.gamma)
+                discounts = routine_discount_minus_one(lens, acts >= num_primitives, args.gamma)
         else:
-            rewards, discounts = macro_reward_and_discount(step_rewards, lengths, args.gamma)
+            rewards, discounts = macro_reward_and_discount(rews, lens, args.gamma)
         if keep_graph:  # the acting passes' outputs, and the values of the states after
             logprobs, entropies, values = (torch.cat(x) for x in zip(*acting_outputs, strict=True))
             with torch.no_grad():
                 bootstrap = agent.get_value(torch.as_tensor(next_obs, device=device))
             bootstrap = bootstrap.cpu().numpy()
         else:
-            # One forward pass over the rollout's n·e decision states and the e states after
+            # One forward pass over the rollout's d·e decision states and the e states after
             # it, whose values (detached) bootstrap the returns. Batched, each output is the
             # acting pass's bit for bit (tests/test_rapl_a2c_update.py).
-            rollout_obs[n] = next_obs
+            rollout_obs[d] = next_obs
             logprobs, entropies, all_values = agent.evaluate(
-                torch.as_tensor(rollout_obs.reshape(-1, *obs_shape), device=device),
-                torch.as_tensor(actions.reshape(-1), device=device))
-            values = all_values[: n * e]
-            bootstrap = all_values[n * e:].detach().cpu().numpy()
-        returns = decision_returns(rewards, discounts, terminated, truncated, final_values,
-                                   bootstrap)
+                torch.as_tensor(rollout_obs[: d + 1].reshape(-1, *obs_shape), device=device),
+                torch.as_tensor(acts.reshape(-1), device=device))
+            values = all_values[: d * e]
+            bootstrap = all_values[d * e:].detach().cpu().numpy()
+        returns = decision_returns(rewards, discounts, terms, truncs, finals, bootstrap)
         b_returns = torch.as_tensor(returns, dtype=torch.float32, device=device)
-        advantages = b_returns - values.view(n, e)  # A_routine, [n, e]
-        pg_loss = -(logprobs.view(n, e) * advantages.detach()).mean()
+        advantages = b_returns - values.view(d, e)  # A_routine, [d, e]
+        pg_loss = -(logprobs.view(d, e) * advantages.detach()).mean()
         v_loss = advantages.pow(2).mean()
-        entropy_loss = entropies.view(n, e).mean()
+        entropy_loss = entropies.view(d, e).mean()
 
         prim_loss = torch.zeros((), device=device)
         if first_n:
@@ -487,9 +516,8 @@ def main(args: Args) -> None:
             prim_loss = (targets - state_values[:n]).pow(2).mean()
         elif args.mode == "rapl" and max_len > 1:
             # A_prim at the primitive states inside routines (step j ≥ 1 of a decision).
-            prim = primitive_returns(step_rewards, lengths, terminated, truncated, final_values,
-                                     bootstrap, args.gamma)
-            inner_states, prim_targets = inner_states_and_targets(inner_obs, prim, lengths)
+            prim = primitive_returns(rews, lens, terms, truncs, finals, bootstrap, args.gamma)
+            inner_states, prim_targets = inner_states_and_targets(inner_obs[:d], prim, lens)
             if len(prim_targets):
                 states = torch.as_tensor(inner_states, device=device)
                 targets = torch.as_tensor(prim_targets, dtype=torch.float32, device=device)
@@ -499,7 +527,10 @@ def main(args: Args) -> None:
             + args.vf_coef * critic_loss(v_loss, prim_loss, args.critic_loss, args.prim_coef)
         optimizer.zero_grad()
         loss.backward()
-        nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+        grad_norm = nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+        check_update(global_step, loss, grad_norm, parts={
+            "value loss": v_loss, "policy loss": pg_loss, "primitive value loss": prim_loss,
+            "entropy": entropy_loss})  # stop before a non-finite update is applied
         optimizer.step()
 
         elapsed = max(time.time() - start_time, 1e-9)

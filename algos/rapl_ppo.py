@@ -62,7 +62,9 @@ from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_primitive_env, make_vector_env
 from routine_gym.networks import ObservationEncoder, categorical_policy, layer_init
 from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent
+from routine_gym.plumbing.divergence import check_update
 from routine_gym.plumbing.loading import unused_routine_flags
+from routine_gym.plumbing.memory import check_rollout_memory
 from routine_gym.plumbing.run import (
     Every,
     eval_env_kwargs,
@@ -71,6 +73,7 @@ from routine_gym.plumbing.run import (
     start_run,
     train_env_kwargs,
 )
+from routine_gym.plumbing.seeds import train_seed
 from routine_gym.ppo import (
     clipped_policy_loss,
     clipped_value_loss,
@@ -94,6 +97,10 @@ class Args:
     """the name of this experiment"""
     seed: int = 1
     """seed of the experiment"""
+    seed_stride: int = 1
+    """env seeds: 1 resets training env i with seed + i (experiment seeds then share env seeds);
+    S ≥ 4 gives each seed its own block [seed·S, (seed+1)·S) of env seeds
+    (`routine_gym.plumbing.seeds`)"""
     torch_deterministic: bool = True
     """if toggled, `torch.backends.cudnn.deterministic=True`"""
     cuda: bool = False
@@ -165,9 +172,10 @@ class Args:
     """the maximum norm for gradient clipping"""
     target_kl: float | None = None
     """stop a rollout's epochs early once the approximate KL exceeds this (None: never)"""
-    reward_scale: float = 1.0
-    """multiply each primitive reward by this for learning (after Atari's sign clipping); the
-    logged returns stay the game's score"""
+    reward_scale: float | None = None
+    """multiply each reward by this for learning (after Atari's sign clipping); the logged
+    returns stay the game's score. Unset: the env profile's scale (MiniQbert 0.01, its 25- and
+    100-point rewards swamp the value loss at 1; every other env 1)"""
     async_envs: bool = False
     """step the environments in subprocesses (AsyncVectorEnv) instead of in this process"""
 
@@ -377,7 +385,8 @@ def main(args: Args) -> None:
     envs = make_vector_env(args.env_id, args.num_envs, args.seed, routines=library,
                            training=True, record_observations=rapl,
                            env_kwargs=train_env_kwargs(args), capture_video=args.capture_video,
-                           run_name=run.name, async_envs=args.async_envs)
+                           run_name=run.name, first_video_episode=run.first_video_episode,
+                           async_envs=args.async_envs)
     assert isinstance(envs.single_action_space, gym.spaces.Discrete), "only discrete actions"
     num_actions = int(envs.single_action_space.n)
     num_routines = len(library) if library is not None else 0
@@ -394,6 +403,10 @@ def main(args: Args) -> None:
     n, e = args.num_steps, args.num_envs
     batch_size = n * e
     obs_shape = envs.single_observation_space.shape
+    # The storage below (and its flattened copy for the minibatches), refused now when it
+    # cannot fit (--num-steps, --num-envs, the routines' inner states).
+    check_rollout_memory(envs.single_observation_space, n, e, observations=2 * max_len,
+                         numbers=8 + max_len)
     obs = np.zeros((n, e, *obs_shape), dtype=envs.single_observation_space.dtype)
     actions = np.zeros((n, e), dtype=np.int64)
     logprobs = np.zeros((n, e), dtype=np.float32)
@@ -410,12 +423,12 @@ def main(args: Args) -> None:
     # What a checkpoint holds; a resumed run starts where its checkpoint left off.
     global_step, iteration, decisions = run.resume(
         {"model": agent, "optimizer": optimizer}, global_step=0, iteration=0, decisions=0,
-        count="decisions" if args.budget_unit == "decisions" else "global_step",
+        count="decisions" if args.budget_unit == "decisions" else "global_step", filmed=envs,
         extra={"library": json.dumps(library.to_dict()) if library is not None else ""})
 
     # The env is reset with a seed that depends on where the run is, so a resumed run does not
     # replay the episodes it already saw.
-    next_obs, _ = envs.reset(seed=args.seed + global_step)
+    next_obs, _ = envs.reset(seed=train_seed(args.seed, args.seed_stride, global_step))
     start_time, start_step, start_decisions = time.time(), global_step, decisions
     logs = Every(args.log_every, start=budget_spent(args.budget_unit, global_step, decisions))
     routine_counts = np.zeros(num_actions, dtype=np.int64)
@@ -556,7 +569,10 @@ def main(args: Args) -> None:
 
                 optimizer.zero_grad()
                 loss.backward()
-                nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+                grad_norm = nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+                check_update(global_step, loss, grad_norm, parts={
+                    "value loss": v_loss, "policy loss": pg_loss,
+                    "primitive value loss": prim_loss, "entropy": entropy_loss})
                 optimizer.step()
             if args.target_kl is not None and approx_kl > args.target_kl:
                 break

@@ -59,7 +59,9 @@ from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_env
 from routine_gym.imitation import agent_view_states, build_demo_transitions, sqil_target
 from routine_gym.networks import ObservationEncoder, layer_init
+from routine_gym.plumbing.divergence import check_update
 from routine_gym.plumbing.loading import check_demo_env, load_demo, unused_routine_flags
+from routine_gym.plumbing.memory import check_memory
 from routine_gym.plumbing.run import Every, run_script, start_run
 from routine_gym.replay_memory import FrameReplayMemory
 
@@ -198,8 +200,12 @@ def main(args: Args) -> dict | None:
     target_network.load_state_dict(q_network.state_dict())
     # fused: one kernel per step instead of a dozen per tensor (8× faster on this CPU)
     optimizer = torch.optim.Adam(q_network.parameters(), lr=args.learning_rate, fused=True)
+    frame_stack = profile_for(args.env_id).frame_stack
+    frame_bytes = obs_space.dtype.itemsize * int(np.prod(obs_space.shape)) // frame_stack
+    check_memory(args.buffer_size * (frame_bytes + 48),  # a frame and six numbers a transition
+                 f"the replay memory (--buffer-size {args.buffer_size:,} × {frame_bytes:,} B)")
     memory = FrameReplayMemory(args.buffer_size, obs_space.shape, obs_space.dtype,
-                               frame_stack=profile_for(args.env_id).frame_stack)
+                               frame_stack=frame_stack)
     half = args.batch_size // 2
 
     # What a checkpoint holds; a resumed run starts where its checkpoint left off.
@@ -263,6 +269,8 @@ def main(args: Args) -> dict | None:
             loss = demo_loss + args.lambda_sample * agent_loss
             optimizer.zero_grad()
             loss.backward()
+            check_update(global_step, loss, parts={"demo loss": demo_loss,
+                                                   "agent loss": agent_loss})
             optimizer.step()
             updates += 1
             session_updates += 1

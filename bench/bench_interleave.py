@@ -170,4 +170,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    from common import children_die_with_me  # no orphan workers after a SIGTERM
+
+    children_die_with_me()
     main()

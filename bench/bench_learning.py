@@ -445,4 +445,7 @@ def render(batches: list[dict]) -> str:
 
 
 if __name__ == "__main__":
+    from common import children_die_with_me  # no orphan workers after a SIGTERM
+
+    children_die_with_me()
     main()

@@ -406,4 +406,7 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
+    from common import children_die_with_me  # no orphan workers after a SIGTERM
+
+    children_die_with_me()
     main()

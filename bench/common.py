@@ -9,7 +9,9 @@ from __future__ import annotations
 import datetime as dt
 import os
 import platform
+import signal
 import subprocess
+import time
 from pathlib import Path
 
 import numpy as np
@@ -79,3 +81,69 @@ def git_head(repo: Path, paths: list[str]) -> str:
         return "unknown"
     changed = [line[3:] for line in status.splitlines() if line.strip()]
     return head + (f" (modified: {', '.join(changed)})" if changed else "")
+
+
+def descendants(pid: int) -> list[int]:
+    """Every living process below `pid` (children, their children, ...), read from /proc."""
+    children: dict[int, list[int]] = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            stat = Path(f"/proc/{entry}/stat").read_text()
+        except OSError:  # gone while we looked
+            continue
+        # `pid (comm) state ppid ...`: comm may hold spaces and parentheses, so split after it.
+        state, ppid = stat.rsplit(")", 1)[1].split()[:2]
+        if state != "Z":
+            children.setdefault(int(ppid), []).append(int(entry))
+    found, todo = [], [pid]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            found.append(child)
+            todo.append(child)
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def _signal_all(pids: list[int], signum: int) -> None:
+    for pid in pids:
+        try:
+            os.kill(pid, signum)
+        except ProcessLookupError:
+            pass
+
+
+def children_die_with_me(grace: float = 3.0) -> None:
+    """Make this benchmark's worker processes die with it on SIGTERM or SIGHUP.
+
+    A benchmark runs the scripts as subprocesses (often from a thread pool), and they start
+    their own (vector-env workers); killed by the default SIGTERM, the benchmark would leave
+    them running at full CPU. The handler takes the whole tree below this process at once
+    (a grandchild whose parent dies first is re-parented and could no longer be found),
+    sends it SIGTERM, SIGKILLs what is still alive after `grace` seconds, and exits with
+    128 + the signal at once (`os._exit`), so no thread of the pool starts another run.
+    SIGINT needs nothing: a terminal's Ctrl-C reaches the whole foreground group. A SIGKILL
+    of the benchmark cannot be caught; its workers then run to their end.
+    """
+    def handler(signum: int, frame: object) -> None:
+        signal.signal(signum, signal.SIG_IGN)  # a second signal must not cut the clean-up short
+        for _ in range(3):  # a pool thread may have started a run while we looked
+            tree = descendants(os.getpid())
+            if not tree:
+                break
+            _signal_all(tree, signal.SIGTERM)
+            deadline = time.monotonic() + grace
+            while time.monotonic() < deadline and any(_alive(p) for p in tree):
+                time.sleep(0.05)
+            _signal_all([p for p in tree if _alive(p)], signal.SIGKILL)
+        os._exit(128 + signum)
+
+    for signum in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(signum, handler)

@@ -3,14 +3,20 @@ finished run's config and result (with its binned training curve) and each exper
 checkpoints, no TensorBoard logs), plus the provenance. The snapshot is itself a sweep folder:
 copy it and run the same command with `--out` the copy to continue the sweep where it stopped.
 
-    python bench/snapshot_experiments.py SWEEP bench/results/experiments/cpu \\
+    .venv/bin/python bench/snapshot_experiments.py SWEEP bench/results/experiments/cpu \\
         --command "routine-gym experiment run NAME --budget cpu --out SWEEP --jobs 2"
+    .venv/bin/python bench/snapshot_experiments.py SWEEP bench/results/experiments/long \\
+        --command "bench/sweep_long.sh SWEEP 2" --beside bench/results/experiments/cpu
 
 Writes DEST/{experiment}.json, DEST/runs/KEY/{config,result}.json (and
 demo.npz), DEST/report/ (the figures, CSVs and report.md of `routine-gym experiment report
-DEST`, drawn from the copy, so the report names DEST and shows only what was committed) and
-DEST/provenance.json (machine, date, commit, command, runs finished per experiment, and one
-line per snapshot so far: what ran when).
+DEST [--beside OTHER]`, drawn from the copy, so the report names DEST and shows only what was
+committed) and DEST/provenance.json (machine, date, commit, command, the `--beside` folder,
+runs finished per experiment, and one line per snapshot so far: what ran when).
+
+A snapshot whose report compared two budgets (`budgets_*` files) keeps the comparison: give
+`--beside OTHER` (it is noted in provenance.json and reused by the next snapshot); without one
+known, the snapshot is refused rather than drop the committed `budgets_*` files.
 """
 
 from __future__ import annotations
@@ -58,6 +64,29 @@ def manifest_keys(path: Path) -> list[str]:
     return [r["key"] for r in runs]
 
 
+def previous_beside(dest: Path) -> Path | None:
+    """The `--beside` folder the last snapshot into `dest` noted (relative to the repository
+    when it lies in it), or None."""
+    path = dest / "provenance.json"
+    if not path.exists():
+        return None
+    noted = read_json_object(path).get("beside")
+    if noted is None:
+        return None
+    if not isinstance(noted, str) or not noted:
+        raise UsageError(f"{path}: `beside` is {json_kind(noted)}, not a folder name")
+    return Path(noted) if Path(noted).is_absolute() else REPO / noted
+
+
+def beside_note(beside: Path) -> str:
+    """`beside` as provenance.json notes it: relative to the repository when it lies in it."""
+    resolved = beside.resolve()
+    try:
+        return str(resolved.relative_to(REPO))
+    except ValueError:
+        return str(resolved)
+
+
 def main() -> None:
     try:
         snapshot()
@@ -71,6 +100,9 @@ def snapshot() -> None:
     parser.add_argument("dest", type=Path, help="where the snapshot goes")
     parser.add_argument("--command", action="append", default=[],
                         help="the command that ran the sweep (repeatable)")
+    parser.add_argument("--beside", type=Path, default=None, metavar="OTHER_SWEEP",
+                        help="draw the report with `--beside OTHER_SWEEP` (the rl experiment "
+                        "at two budgets; default: the one the last snapshot noted)")
     args = parser.parse_args()
 
     dest = args.dest
@@ -94,6 +126,11 @@ def snapshot() -> None:
         if not isinstance(history, list):
             raise UsageError(f"{dest / 'provenance.json'}: `snapshots` is {json_kind(history)}, "
                              "not a list")
+    beside = args.beside if args.beside is not None else previous_beside(dest)
+    if beside is None and (dest / "report" / "budgets_fig2.csv").exists():
+        raise UsageError(f"{dest / 'report'} compares two budgets (budgets_*); give --beside "
+                         "OTHER_SWEEP (e.g. bench/results/experiments/cpu) to keep the "
+                         "comparison, or delete its budgets_* files to drop it")
     try:
         dest.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -132,13 +169,14 @@ def snapshot() -> None:
     if cached.exists():
         (dest / "report").mkdir()
         shutil.copy2(cached, dest / "report" / cached.name)
-    write_report(dest)
+    write_report(dest, beside=beside)
     commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True,
                             text=True).stdout.strip()
     date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     history.append({"date": date, "commit": commit,
                     "finished": sum(c["finished"] for c in counts.values())})
     provenance = {"date": date, "commit": commit, "commands": args.command,
+                  **({"beside": beside_note(beside)} if beside is not None else {}),
                   "experiments": counts, "snapshots": history,
                   "machine": {**base_machine_info(), "load_average": load_average()}}
     atomic_write_text(dest / "provenance.json", json.dumps(provenance, indent=2) + "\n")
@@ -148,4 +186,7 @@ def snapshot() -> None:
 
 
 if __name__ == "__main__":
+    from common import children_die_with_me  # no orphan workers after a SIGTERM
+
+    children_die_with_me()
     main()

@@ -5,12 +5,16 @@
 # runs finished in earlier sessions are not redone. Then snapshot it:
 #
 #     bench/sweep_cpu.sh /work/sweeps/cpu 2
-#     python bench/snapshot_experiments.py /work/sweeps/cpu bench/results/experiments/cpu \
+#     .venv/bin/python bench/snapshot_experiments.py /work/sweeps/cpu bench/results/experiments/cpu \
 #         --command "bench/sweep_cpu.sh SWEEP 2"
 set -euo pipefail
 SWEEP=${1:?usage: bench/sweep_cpu.sh SWEEP [JOBS]}
 JOBS=${2:-2}
-PYTHON=${PYTHON:-python}
+# The clone's venv (`make run` or `make test` makes it), else python3 (Debian has no `python`).
+REPO="$(cd "$(dirname "$0")/.." && pwd)"
+if [ -z "${PYTHON:-}" ]; then
+  if [ -x "$REPO/.venv/bin/python" ]; then PYTHON="$REPO/.venv/bin/python"; else PYTHON=python3; fi
+fi
 BUDGET=${BUDGET:-cpu}  # BUDGET=smoke tries the script in seconds
 SNAPSHOT="$(cd "$(dirname "$0")" && pwd)/results/experiments/$BUDGET"
 if [ ! -e "$SWEEP" ] && [ -d "$SNAPSHOT/runs" ]; then

@@ -11,13 +11,17 @@
 # snapshot it:
 #
 #     nohup bench/sweep_long.sh /work/sweeps/long 2 > /work/sweeps/long.log 2>&1 &
-#     routine-gym experiment report /work/sweeps/long          # any time, also while it runs
-#     python bench/snapshot_experiments.py /work/sweeps/long bench/results/experiments/long \
-#         --command "bench/sweep_long.sh SWEEP 2"
+#     .venv/bin/routine-gym experiment report /work/sweeps/long          # any time, also while it runs
+#     .venv/bin/python bench/snapshot_experiments.py /work/sweeps/long bench/results/experiments/long \
+#         --command "bench/sweep_long.sh SWEEP 2" --beside bench/results/experiments/cpu
 set -euo pipefail
 SWEEP=${1:?usage: bench/sweep_long.sh SWEEP [JOBS]}
 JOBS=${2:-2}
-PYTHON=${PYTHON:-python}
+# The clone's venv (`make run` or `make test` makes it), else python3 (Debian has no `python`).
+REPO="$(cd "$(dirname "$0")/.." && pwd)"
+if [ -z "${PYTHON:-}" ]; then
+  if [ -x "$REPO/.venv/bin/python" ]; then PYTHON="$REPO/.venv/bin/python"; else PYTHON=python3; fi
+fi
 NICE=${NICE:-10}
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1} MKL_NUM_THREADS=${MKL_NUM_THREADS:-1}
 SNAPSHOT="$(cd "$(dirname "$0")" && pwd)/results/experiments/long"

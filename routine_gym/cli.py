@@ -23,6 +23,8 @@ import importlib
 import math
 import os
 import sys
+import threading
+import time
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -213,8 +215,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_show_demos(args: argparse.Namespace) -> int:
-    from routine_gym.demo import DEMO_SUITE, DEMOS_DIR, Demo, demo_filename
-    from routine_gym.mining import SequiturMiner
+    from routine_gym.demo import DEMO_SETS, DEMO_SUITE, DEMOS_DIR, demo_filename
 
     _needs("--num-routines", args.num_routines, args.num_routines >= 1, "≥ 1")
     folder = Path(args.dir) if args.dir else Path(DEMOS_DIR)
@@ -223,8 +224,28 @@ def cmd_show_demos(args: argparse.Namespace) -> int:
     files = sorted(folder.glob("*.npz"))
     shipped = {path.name for path in files}
     missing = [env_id for env_id in DEMO_SUITE if demo_filename(env_id) not in shipped]
-    print(f"{len(files)} demo(s) in {folder}")
-    miner = SequiturMiner(num_routines=args.num_routines)
+    label = "" if args.dir else " (demo set `current`: what every script reads by default)"
+    print(f"{len(files)} demo(s) in {folder}{label}")
+    _show_demo_files(files, args.num_routines)
+    for env_id in missing:
+        print(f"\n{env_id}: no demo in {folder} (expected {demo_filename(env_id)})")
+    if not args.dir:  # the sets the current demos replaced, kept for the runs made with them
+        for name, sub in DEMO_SETS.items():
+            older = sorted((folder / sub).glob("*.npz")) if sub else []
+            if older:
+                print(f"\n{len(older)} demo(s) of the older demo set `{name}` in {folder / sub} "
+                      f"(experiments at a budget with this set read them: --demo "
+                      f"{folder / sub / older[0].name} names one)")
+                _show_demo_files(older, args.num_routines)
+    return 0
+
+
+def _show_demo_files(files: list[Path], num_routines: int) -> None:
+    """Each demo file's env, score, steps, source and its mined routines."""
+    from routine_gym.demo import Demo
+    from routine_gym.mining import SequiturMiner
+
+    miner = SequiturMiner(num_routines=num_routines)
     for path in files:
         demo = Demo.load(path)
         meta = demo.meta
@@ -244,9 +265,6 @@ def cmd_show_demos(args: argparse.Namespace) -> int:
             print(f"  routine {k}: {library.name(k)}  (f = {library.frequencies[k]})")
         for w in caught:
             print(f"  note: {w.message}")
-    for env_id in missing:
-        print(f"\n{env_id}: no demo in {folder} (expected {demo_filename(env_id)})")
-    return 0
 
 
 def cmd_picture(args: argparse.Namespace) -> int:
@@ -532,9 +550,37 @@ def cmd_experiment_run(args: argparse.Namespace) -> int:
 
 def cmd_experiment_report(args: argparse.Namespace) -> int:
     from routine_gym.experiments.report import write_report
+    from routine_gym.plumbing.atomic import check_folder
 
-    for path in write_report(args.out, beside=args.beside):
+    if args.report_dir is not None:
+        check_folder(args.report_dir, "--out")  # minari:ID, xyz:, '', a file: before reading
+
+    start = time.monotonic()
+    pending: list[threading.Timer] = []
+
+    def say(line: str, at: float | None = None) -> None:
+        # stderr: stdout stays the list of files written, for a script to read.
+        at = time.monotonic() - start if at is None else at
+        print(f"report [{at:5.1f} s] {line}", file=sys.stderr, flush=True)
+
+    def progress(line: str) -> None:
+        # A step's line shows once the step has taken a second: a quick report, or one stopped
+        # by a mistake (a bad file is found while reading), prints only its one-line error.
+        for timer in pending:
+            timer.cancel()
+        pending[:] = [threading.Timer(1.0, say, (line, time.monotonic() - start))]
+        pending[0].daemon = True
+        pending[0].start()
+
+    try:
+        written = write_report(args.out, beside=args.beside, folder=args.report_dir,
+                               progress=progress)
+    finally:
+        for timer in pending:
+            timer.cancel()
+    for path in written:
         print(path)
+    say(f"{len(written)} file(s) written in {written[-1].parent}")
     return 0
 
 

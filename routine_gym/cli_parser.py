@@ -234,6 +234,8 @@ def _add_experiment(sub: argparse._SubParsersAction) -> dict[str, argparse.Argum
                         "reads the sweep, so it may run while a sweep runs there (the runs in "
                         "flight count as missing).")
     q.add_argument("out", help="the sweep folder of `experiment run`")
+    q.add_argument("--out", dest="report_dir", default=None, metavar="FOLDER",
+                   help="where the report goes (default: OUT/report); made when missing")
     q.add_argument("--beside", default=None, metavar="OTHER_SWEEP",
                    help="also compare the rl experiment with OTHER_SWEEP's at another budget "
                    "(e.g. the cpu budget's 10^6 steps beside the long budget's 10^7; which is "

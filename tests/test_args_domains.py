@@ -17,7 +17,13 @@ import typing
 import pytest
 from script_loader import ALGOS, load_script
 
-from routine_gym.plumbing.arguments import DOMAINS
+from routine_gym.plumbing.arguments import (
+    DOMAINS,
+    MAX_TORCH_THREADS,
+    _flag,
+    check_args,
+    usable_cpus,
+)
 from routine_gym.plumbing.errors import UsageError
 
 NAMES = sorted(path.stem for path in ALGOS.glob("*.py"))
@@ -26,6 +32,32 @@ SCRIPTS = {name: load_script(name, f"domains_{name}") for name in NAMES}
 #: Numeric flags where any value is legitimate, with why. None today: even `--seed` has a domain
 #: (NumPy's global seed takes only [0, 2**32 - 1]).
 ANY_VALUE: dict[str, str] = {}
+
+_TIME = "time follows from it, not memory nor threads (a loop's length)"
+_SCALAR = "a coefficient or rate: no memory nor thread follows (a value that breaks training "
+_SCALAR += "is stopped by routine_gym.plumbing.divergence)"
+#: Numeric flags from which neither memory nor threads follow, with why. Every other numeric
+#: flag needs an upper bound (`test_every_memory_or_thread_flag_has_an_upper_bound`), so a new
+#: flag is either bounded or named here.
+NO_MEMORY_OR_THREADS: dict[str, str] = {
+    **dict.fromkeys(["total_timesteps", "gradient_steps", "update_epochs", "prim_epochs",
+                     "disc_epochs", "compile_iterations", "compile_option_steps",
+                     "learning_starts"], _TIME),
+    **dict.fromkeys(["log_every", "checkpoint_every", "train_frequency",
+                     "target_network_frequency"], "how often something is done"),
+    "eval_max_steps": "a cap on an episode's steps: the memory follows the episode's real length",
+    "alpha": "the miner's minimum count of a routine: a larger one finds fewer",
+    "seed": "bounded anyway ([0, 2**32 - 1])",
+    "seed_stride": "seed arithmetic (each experiment seed's block of env seeds)",
+    "num_levels": "Procgen's level seeds: numbers, not levels held in memory",
+    "start_level": "Procgen's first level seed",
+    **dict.fromkeys(["learning_rate", "disc_learning_rate", "compile_learning_rate",
+                     "reward_scale", "ent_coef", "vf_coef", "prim_coef", "max_grad_norm",
+                     "rmsprop_alpha", "rmsprop_eps", "temperature", "tau", "lambda_sample",
+                     "clip_coef", "gamma", "gae_lambda", "length_weight", "target_kl",
+                     "compile_prior_rate", "deliberation_cost", "option_epsilon", "term_coef"],
+                    _SCALAR),
+}
 
 
 def numeric_fields(args_type: type) -> list[str]:
@@ -112,3 +144,39 @@ def test_a_value_outside_its_domain_is_refused_by_name(script, setting, message,
         module.main(module.Args(env_id="MiniQbert-v0", run_dir=str(tmp_path), **setting))
     assert message in str(refused.value)
     assert os.listdir(tmp_path) == []  # refused before a run folder was made
+
+
+@pytest.mark.parametrize("script", NAMES)
+def test_every_memory_or_thread_flag_has_an_upper_bound(script):
+    # Issue 46: --torch-threads 100000 segfaulted, --num-envs 10^7 hung at 2 GB, --num-steps
+    # 10^11 died of a MemoryError. A flag memory or threads follow from refuses a huge value
+    # before any work, even with the budget raised as far as it goes.
+    module = SCRIPTS[script]
+    unbounded = []
+    for name in numeric_fields(module.Args):
+        if name in NO_MEMORY_OR_THREADS:
+            continue
+        args = module.Args()
+        for budget in ("total_timesteps", "gradient_steps"):
+            if hasattr(args, budget):
+                setattr(args, budget, 10**18)
+        setattr(args, name, 10**15)
+        try:
+            check_args(args, getattr(module, "extra_checks", ()))
+        except UsageError as exc:
+            if _flag(name) in str(exc):
+                continue
+        unbounded.append(name)
+    assert unbounded == [], (f"{script}.py: no upper bound for {unbounded}: memory or threads "
+                             "follow from them; bound them in DOMAINS or the script's "
+                             "extra_checks, or name them in NO_MEMORY_OR_THREADS with why")
+
+
+def test_torch_threads_is_bounded_by_four_times_the_usable_cpus():
+    assert MAX_TORCH_THREADS == 4 * usable_cpus()
+    args = SCRIPTS["rapl_a2c"].Args(torch_threads=MAX_TORCH_THREADS)
+    check_args(args)
+    args.torch_threads = MAX_TORCH_THREADS + 1
+    with pytest.raises(UsageError, match=rf"--torch-threads needs to be ≤ {MAX_TORCH_THREADS:,} "
+                                         rf"\(4 × the {usable_cpus()} CPUs"):
+        check_args(args)

@@ -134,7 +134,7 @@ def test_a_bad_selection_is_a_one_line_error_naming_the_choices():
 
 
 def test_load_routines_threads_selection():
-    demo = Demo.load(REPO / "demos" / "MinAtar-Freeway-v1.npz")
+    demo = Demo.load(REPO / "demos" / "first" / "MinAtar-Freeway-v1.npz")
     library = load_routines("MinAtar/Freeway-v1", 3, demo=demo, selection="authors")
     # The library the authors' own code selects from our candidates (bench/results/
     # authors_selection.md); the paper's is (1,1,1), (1,1,1,1,1), (1,1,1,1,1,1,1,1).
@@ -154,7 +154,7 @@ def user(*words: str | Path, cwd: Path) -> subprocess.CompletedProcess:
 
 
 def test_mine_with_the_authors_selection_as_a_user(tmp_path):
-    demo = REPO / "demos" / "MinAtar-SpaceInvaders-v1.npz"
+    demo = REPO / "demos" / "first" / "MinAtar-SpaceInvaders-v1.npz"
     proc = user("mine", demo, "--selection", "authors", "--out", "lib.json", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "selection=authors" in proc.stdout

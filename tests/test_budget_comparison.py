@@ -154,16 +154,22 @@ def test_relative_performance_standard_errors_and_verdicts_by_hand(sweeps):
     assert float(b["relative_pct"]) == pytest.approx(-40.0)
     assert float(b["error_pct"]) == pytest.approx(20.0)
     assert float(b["authors_relative_pct"]) == pytest.approx(20.0)
-    assert (b["verdict"], b["authors_verdict"]) == ("worse", "same")
+    # Welch's t over 2 seeds a side, ν = 1: p = 1 − (2/π)·atan|t|. RAPL: t = −2/√2,
+    # p = 0.392; the authors': t = 1/√2, p = 0.608. Two seeds make no verdict here.
+    assert (b["verdict"], b["authors_verdict"]) == ("no evidence (p = 0.392)",
+                                                    "no evidence (p = 0.608)")
     b = rows[BREAKOUT, "long"]
     assert float(b["relative_pct"]) == pytest.approx(300 / 7)
     assert float(b["error_pct"]) == 0.0
     assert float(b["authors_relative_pct"]) == 0.0
-    assert (b["verdict"], b["authors_verdict"]) == ("better", "same")
+    # RAPL 10 ± 0 against 7 ± 1: t = 3, p = 1 − (2/π)·atan 3 = 0.205; the authors' t = 0.
+    assert (b["verdict"], b["authors_verdict"]) == ("no evidence (p = 0.205)",
+                                                    "no evidence (p = 1.000)")
     a = rows[ASTERIX, "cpu"]
     assert float(a["relative_pct"]) == pytest.approx(-15.0)
     assert float(a["error_pct"]) == pytest.approx(5.0)
-    assert a["verdict"] == "worse" and a["authors_verdict"] == "no runs"
+    # 8.5 ± 0.5 against 10 ± 0: t = −3, p = 0.205.
+    assert a["verdict"] == "no evidence (p = 0.205)" and a["authors_verdict"] == "no runs"
     assert float(rows[SEAQUEST, "cpu"]["relative_pct"]) == pytest.approx(-50.0)
 
 
@@ -199,15 +205,17 @@ def test_a_game_missing_at_one_budget_is_reported_as_missing(sweeps):
     assert f"  - {SEAQUEST}: no runs at this budget (not in this sweep's rl experiment)." in text
     assert "- At 10^3 steps (budget cpu, " in text and "14 of 14 runs finished (the authors' " \
         "code's from its `diagnosis.json`)." in text
-    # The table and the verdicts: Breakout from worse to better; 0 of 3 games, 1 of 1.
+    # The table and the verdicts (Welch, 2 seeds a side: no evidence either way); S_R ≥ S_A
+    # on 0 of 3 games, 1 of 1.
     assert (f"| {BREAKOUT} | 10^3 | 2/2/2 | 5.00 ± 1.00 | 3.00 ± 1.00 | 6.00 ± 1.00 | "
-            "-40.0 % ± 20.0 % | worse | 20.0 % ± 20.0 % | same | 100 | 45 | 20 | 2.25 | 3.00 |"
-            ) in text
+            "-40.0 % ± 20.0 % | no evidence (p = 0.392) | 20.0 % ± 20.0 % | no evidence "
+            "(p = 0.608) | 100 | 45 | 20 | 2.25 | 3.00 |") in text
     assert (f"| {SEAQUEST} | 10^4 | 0/0/0 | – | – | – | – | no runs | – | no runs | – | – | – "
             "| – | – |") in text
-    assert ("**RAPL-A2C same or better than A2C on 0 of 3 games at 10^3 steps and 1 of 1 "
-            "games at 10^4 steps**") in text
-    assert f"{BREAKOUT}: worse → better (-40.0 % ± 20.0 % → 42.9 % ± 0.0 %)." in text
+    assert ("**RAPL-A2C same or better than A2C (S_R ≥ S_A, as Fig. 2 counts) on 0 of 3 games "
+            "at 10^3 steps and 1 of 1 games at 10^4 steps**") in text
+    assert (f"{BREAKOUT}: no evidence (p = 0.392) → no evidence (p = 0.205) (-40.0 % ± 20.0 % "
+            "→ 42.9 % ± 0.0 %).") in text
 
 
 def test_curves_with_updates_and_routine_shares_by_hand(sweeps):
@@ -307,3 +315,21 @@ def test_the_docstring_examples_hold():
 
     for module in (bc, run_counters):  # the verdict rule, steps' labels, the routine shares
         assert doctest.testmod(module).failed == 0, module.__name__
+
+
+def test_same_or_better_counts_as_fig2_does_not_by_the_verdicts():
+    # MiniQbert in the committed sweeps: S_R 1047.8 against S_A 1050, within a standard error,
+    # so its verdict is *same*; Fig. 2 counts S_R ≥ S_A, and the two reports must agree.
+    side = bc.Side(Path("."), "cpu", 1000, [], None)
+
+    def row(env_id, s_a, s_r, verdict):
+        return bc.Row(env_id, side, {}, {}, {"A2C": s_a, "RAPL-A2C": s_r}, {}, {},
+                      {"RAPL-A2C": verdict}, {}, {}, {})
+
+    rows = {("MiniQbert-v0", 1000): row("MiniQbert-v0", 1050.0, 1047.8, "same"),
+            ("Freeway", 1000): row("Freeway", 20.0, 20.0, "same"),
+            ("Breakout", 1000): row("Breakout", 5.0, 7.0, "better"),
+            ("Asterix", 1000): row("Asterix", 3.0, 1.0, "worse"),
+            ("Seaquest", 1000): row("Seaquest", math.nan, math.nan, bc.NO_RUNS)}
+    games = ["MiniQbert-v0", "Freeway", "Breakout", "Asterix", "Seaquest"]
+    assert bc._same_or_better(rows, games, side) == (2, 4)  # Freeway (equal) and Breakout

@@ -37,9 +37,12 @@ SCRIPTS = {name: load_script(name, f"nonsense_{name}")
      "--compile-option-steps needs to be ≥ 0, actual value: -1"),
     ("rapl_a2c", {"learning_rate": float("nan")}, "--learning-rate needs to be > 0"),
     ("rapl_a2c", {"ent_coef": float("inf")}, "--ent-coef needs to be ≥ 0, actual value: inf"),
-    ("rapl_a2c", {"num_steps": 10**9, "total_timesteps": 500},
-     "--num-steps needs to be ≤ --total-timesteps (500), actual value: 1,000,000,000"),
-    ("gail", {"num_steps": 10**9, "total_timesteps": 500}, "--num-steps needs to be ≤"),
+    ("rapl_a2c", {"num_steps": 10**6, "total_timesteps": 500},
+     "--num-steps needs to be ≤ --total-timesteps (500), actual value: 1,000,000"),
+    ("gail", {"num_steps": 10**6, "total_timesteps": 500}, "--num-steps needs to be ≤"),
+    # Past its own upper bound (memory follows from it), whatever the budget.
+    ("rapl_a2c", {"num_steps": 10**11, "total_timesteps": 10**12},
+     "--num-steps needs to be ≤ 1,048,576, actual value: 100000000000"),
     ("rapl_sqil", {"tau": float("inf")}, "--tau needs to be in (0, 1], actual value: inf"),
     ("bc", {"learning_rate": -1.0}, "--learning-rate needs to be > 0, actual value: -1.0"),
 ])
@@ -73,7 +76,11 @@ def checkpoint(tmp_path_factory) -> Path:
     ({"ent_coef": float("inf")}, "--ent-coef needs to be ≥ 0, actual value: inf"),
     ({"num_envs": "two"}, "its saved setting num_envs is 'two', not a value of the kind int"),
     ({"anneal_lr": 1}, "its saved setting anneal_lr is 1, not a value of the kind bool"),
-    ({"num_steps": 10**9}, "--num-steps needs to be ≤ --total-timesteps"),
+    ({"num_steps": 10**6}, "--num-steps needs to be ≤ --total-timesteps"),
+    # Issue 46: a checkpoint's 10^7 envs would hang at 2 GB; refused before any work.
+    ({"num_envs": 10**7}, "its saved settings are not valid (--num-envs needs to be ≤ 1,024, "
+                          "actual value: 10000000)"),
+    ({"torch_threads": 100_000}, "--torch-threads needs to be ≤"),
 ])
 def test_settings_restored_by_resume_are_checked(edit, message, checkpoint, tmp_path):
     state = torch.load(checkpoint, weights_only=True)

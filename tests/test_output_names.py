@@ -35,6 +35,7 @@ CLI_WRITERS = {
     "record": ["record", "MiniQbert-v0", "--episodes", "1"],
     "play": ["play", "MiniQbert-v0"],
     "experiment run": ["experiment", "run", "rl", "--budget", "smoke"],
+    "experiment report": ["experiment", "report", "sweep"],
 }
 
 

@@ -27,10 +27,19 @@ from routine_gym.demo.minari import MINARI_SCHEME, export_minari, load_minari_de
 from routine_gym.demo.npz import DEMO_FORMAT, DEMO_VERSION, READABLE_VERSIONS, demo_file_version
 from routine_gym.demo.recorder import DecisionMarker, DemoRecorder
 from routine_gym.demo.replay import DemoReplayError, ReplayResult, replay, upgrade_demo
-from routine_gym.demo.suite import DEMO_SUITE, DEMOS_DIR, demo_filename, shipped_demo_path
+from routine_gym.demo.suite import (
+    DEMO_SETS,
+    DEMO_SUITE,
+    DEMOS_DIR,
+    demo_filename,
+    demo_set_file,
+    shipped_demo_path,
+)
 
 __all__ = [
     "DEMOS_DIR",
+    "DEMO_SETS",
+    "demo_set_file",
     "DEMO_FORMAT",
     "DEMO_SUITE",
     "DEMO_VERSION",

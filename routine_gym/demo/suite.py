@@ -35,14 +35,47 @@ DEMO_SUITE: tuple[str, ...] = (
 )
 
 
+#: The shipped demo sets: `current` (the files in `demos/`, what every script defaults to) and
+#: the sets they replaced, each kept in a subfolder of `demos/` so that the runs made with it
+#: stay reproducible. `first`: MinAtar's five demos of the first protocol (5M-step A2C experts,
+#: 2026-12-01), replaced on 2026-12-06 by demos of 10M-step experts that score at least the
+#: best any learner reached in the `long` sweep (issue 47). A set holds only the files that
+#: changed; an env it lacks reads the current file.
+DEMO_SETS: dict[str, str] = {"current": "", "first": "first"}
+
+
 def demo_filename(env_id: str) -> str:
     """The file name of `env_id`'s shipped demo: `ALE/Qbert-v5` → `ALE-Qbert-v5.npz`."""
     return env_id.replace("/", "-") + ".npz"
 
 
-def shipped_demo_path(env_id: str) -> str | None:
-    """The path of the demo shipped in `demos/` for `env_id`, or None if there is none."""
+def shipped_demo_path(env_id: str, demo_set: str = "current") -> str | None:
+    """The path of the demo shipped for `env_id` in `demo_set` (`DEMO_SETS`: `current` is
+    `demos/`, an older set its subfolder, falling back to `demos/` for an env the set did not
+    change), or None if there is none.
+
+    Raises:
+        ValueError: `demo_set` is not one of `DEMO_SETS`.
+    """
     from routine_gym.envs import canonical_env_id
 
-    path = os.path.join(DEMOS_DIR, demo_filename(canonical_env_id(env_id)))
-    return path if os.path.isfile(path) else None
+    if demo_set not in DEMO_SETS:
+        raise ValueError(f"unknown demo set {demo_set!r}; choose from {', '.join(DEMO_SETS)}")
+    name = demo_filename(canonical_env_id(env_id))
+    for folder in (os.path.join(DEMOS_DIR, DEMO_SETS[demo_set]), DEMOS_DIR):
+        path = os.path.join(folder, name)
+        if os.path.isfile(path):
+            return path
+    return None
+
+
+def demo_set_file(env_id: str, demo_set: str) -> str | None:
+    """The file `demo_set` holds for `env_id` itself (not the current one it falls back to),
+    as a path relative to `demos/` (`first/MinAtar-Breakout-v1.npz`), or None: the set has
+    none, so `env_id` reads the current demo in that set too."""
+    from routine_gym.envs import canonical_env_id
+
+    if not DEMO_SETS.get(demo_set):
+        return None
+    relative = os.path.join(DEMO_SETS[demo_set], demo_filename(canonical_env_id(env_id)))
+    return relative if os.path.isfile(os.path.join(DEMOS_DIR, relative)) else None

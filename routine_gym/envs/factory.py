@@ -90,6 +90,7 @@ def make_env(
     env_kwargs: dict[str, Any] | None = None,
     capture_video: bool = False,
     run_name: str = "",
+    first_video_episode: int = 0,
 ) -> Callable[[], gym.Env]:
     """A thunk that builds env number `idx`: primitive env, statistics, preprocessing, routines.
 
@@ -105,13 +106,15 @@ def make_env(
         capture_video: film env 0's episodes 0, 1, 8, 27, ... (CleanRL's schedule) into
             `videos/{run_name}/train-episode-{k}.gif`, each frame captioned with its primitive
             action (`routine_gym.video`; Gymnasium's `RecordVideo` needs moviepy).
+        first_video_episode: the number of env 0's first episode (a resumed run's episodes
+            so far, `Run.first_video_episode`), so its films go on where the run left off.
     """
 
     def thunk() -> gym.Env:
         render_mode = "rgb_array" if capture_video and idx == 0 else None
         env = make_primitive_env(env_id, render_mode=render_mode, **(env_kwargs or {}))
         if capture_video and idx == 0:
-            env = _filmed(env, f"videos/{run_name}")
+            env = _filmed(env, f"videos/{run_name}", first_video_episode)
         env = RecordEpisodeStatistics(env)
         env = preprocess(env, env_id, training=training)
         if routines is not None and len(routines) > 0:
@@ -124,9 +127,17 @@ def make_env(
     return thunk
 
 
-def _filmed(env: gym.Env, folder: str) -> gym.Env:
-    """`env` filming its episodes on the cubic schedule as captioned GIFs in `folder`."""
-    from routine_gym.video import FrameRecorder, cubic_schedule, step_captions, write_gif
+def _filmed(env: gym.Env, folder: str, first_episode: int = 0) -> gym.Env:
+    """`env` filming its episodes on the cubic schedule as captioned GIFs in `folder`,
+    numbered from `first_episode`; a GIF already there (a killed leg's, filmed after its last
+    checkpoint) is kept and the new one named beside it."""
+    from routine_gym.video import (
+        FrameRecorder,
+        cubic_schedule,
+        step_captions,
+        unused_path,
+        write_gif,
+    )
 
     meanings = getattr(env.unwrapped, "get_action_meanings", lambda: None)()
     fps = (env.metadata or {}).get("render_fps") or 15
@@ -136,9 +147,10 @@ def _filmed(env: gym.Env, folder: str) -> gym.Env:
                                  num_actions=int(env.action_space.n),
                                  action_meanings=meanings)
         write_gif(frames, [*captions, f"end of training episode {episode}"],
-                  f"{folder}/train-episode-{episode}.gif", fps=fps)
+                  unused_path(f"{folder}/train-episode-{episode}.gif"), fps=fps)
 
-    return FrameRecorder(env, record=cubic_schedule, on_episode_end=write)
+    return FrameRecorder(env, record=cubic_schedule, on_episode_end=write,
+                         first_episode=first_episode, spool_dir=folder)
 
 
 def make_vector_env(
@@ -152,6 +164,7 @@ def make_vector_env(
     env_kwargs: dict[str, Any] | None = None,
     capture_video: bool = False,
     run_name: str = "",
+    first_video_episode: int = 0,
     async_envs: bool = False,
     batched: bool = True,
 ) -> gym.vector.VectorEnv:
@@ -171,7 +184,8 @@ def make_vector_env(
             return envs
     thunks = [make_env(env_id, seed, i, routines=routines, training=training,
                        record_observations=record_observations, env_kwargs=env_kwargs,
-                       capture_video=capture_video, run_name=run_name)
+                       capture_video=capture_video, run_name=run_name,
+                       first_video_episode=first_video_episode)
               for i in range(num_envs)]
     vector_cls = gym.vector.AsyncVectorEnv if async_envs else gym.vector.SyncVectorEnv
     return vector_cls(thunks, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)

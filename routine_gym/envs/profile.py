@@ -32,12 +32,16 @@ class EnvProfile:
             for images). A name, not a module: the networks depend on the profiles, never the
             reverse, so `routine_gym.envs` imports no torch.
         has_levels: the env is trained on some levels and evaluated on others (Procgen).
+        reward_scale: what the scripts multiply the rewards they learn from by when
+            `--reward-scale` is not given (MiniQbert: 0.01, its 25- and 100-point rewards
+            swamp the value loss at 1); the logged and evaluated returns stay the game's.
     """
 
     family: str = "generic"
     frame_stack: int = 1
     network: str = "default"
     has_levels: bool = False
+    reward_scale: float = 1.0
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(family={self.family!r})"

@@ -60,7 +60,8 @@ def script_path(script: str) -> Path:
 
 
 def _resolve(value: Any, runs: Path, key: str) -> list[str]:
-    """A flag value as command-line words, with `@self/` and `@run:KEY/` made paths."""
+    """A flag value as command-line words, with `@self/`, `@run:KEY/` and `@demos/` made
+    paths."""
     if isinstance(value, list | tuple):
         return [w for v in value for w in _resolve(v, runs, key)]
     if isinstance(value, bool):
@@ -71,6 +72,10 @@ def _resolve(value: Any, runs: Path, key: str) -> list[str]:
     if text.startswith("@run:"):
         other, _, rest = text[len("@run:"):].partition("/")
         return [str(runs / other / rest)]
+    if text.startswith("@demos/"):  # a shipped demo (`RunSpec.pinned`)
+        from routine_gym.demo import DEMOS_DIR
+
+        return [str(Path(DEMOS_DIR) / text[len("@demos/"):])]
     return [text]
 
 
@@ -100,7 +105,12 @@ def command(config: dict[str, Any], runs: Path, cuda: bool = False,
         return [python, script, "--resume", str(checkpoints[-1].parent),
                 *tracking_flags(tracking, resume=True)]
     words = [python, script]
-    for flag, value in config["flags"].items():
+    flags = {**config["flags"], **config.get("pinned", {})}
+    if config.get("derived"):  # decided now, from the finished runs it needs
+        from routine_gym.experiments.derived import derived_flags
+
+        flags.update(derived_flags(config["derived"], runs))
+    for flag, value in flags.items():
         if isinstance(value, bool):  # the scripts' booleans are --flag / --no-flag
             words.append(f"--{flag}" if value else f"--no-{flag}")
         else:

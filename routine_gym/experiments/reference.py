@@ -55,11 +55,12 @@ def random_policy_scores(env_id: str, episodes: int, seed: int) -> dict[str, Any
     return play(env_id, episodes, seed)
 
 
-def demo_score(env_id: str) -> float | None:
-    """The score of the best episode of `env_id`'s shipped demo, or None without one."""
+def demo_score(env_id: str, demo_set: str = "current") -> float | None:
+    """The score of the best episode of `env_id`'s shipped demo in `demo_set`, or None
+    without one."""
     from routine_gym.demo import Demo, shipped_demo_path
 
-    path = shipped_demo_path(env_id)
+    path = shipped_demo_path(env_id, demo_set)
     if path is None:
         return None
     demo = Demo.load(path)
@@ -98,16 +99,25 @@ def _read_cache(cache: Path) -> dict[str, Any]:
     return stored
 
 
-def reference_scores(env_ids: Iterable[str], cache: str | Path) -> dict[str, Reference]:
+def reference_scores(env_ids: Iterable[str], cache: str | Path, demo_set: str = "current",
+                     episodes: int = REFERENCE_EPISODES) -> dict[str, Reference]:
     """Each env's `Reference`, written to `cache` (JSON); a random-policy score already there
-    (same episodes and seed) is reused rather than played again."""
+    (same episodes and seed) is reused rather than played again.
+
+    Args:
+        env_ids: the games to normalise.
+        cache: the JSON file of the random policy's scores (and the references used).
+        demo_set: the shipped demos (`routine_gym.demo.DEMO_SETS`) whose best episode is a
+            demo-normalised game's top: a budget's `demo_set`.
+        episodes: the random policy's episodes (a budget's `reference_episodes`).
+    """
     from routine_gym.metrics import HUMAN_RANDOM_SCORES, atari_game_name
 
     cache = Path(cache)
     cached: dict[str, Any] = {}
     if cache.exists():
         stored = _read_cache(cache)
-        if (stored.get("episodes"), stored.get("seed")) == (REFERENCE_EPISODES, REFERENCE_SEED):
+        if (stored.get("episodes"), stored.get("seed")) == (episodes, REFERENCE_SEED):
             cached = stored.get("envs", {})
     references: dict[str, Reference] = {}
     for env_id in sorted(set(env_ids)):
@@ -116,13 +126,13 @@ def reference_scores(env_ids: Iterable[str], cache: str | Path) -> dict[str, Ref
             random, human = HUMAN_RANDOM_SCORES[atari_game_name(key)]
             references[env_id] = Reference("human", random, human, key)
             continue
-        demo = demo_score(env_id)
+        demo = demo_score(env_id, demo_set)
         if demo is None:
             references[env_id] = Reference("raw", note="no shipped demo and no published table")
             continue
         random = cached.get(env_id, {}).get("random")
         if random is None:
-            random = random_policy_scores(env_id, REFERENCE_EPISODES, REFERENCE_SEED)["mean"]
+            random = random_policy_scores(env_id, episodes, REFERENCE_SEED)["mean"]
         random = float(random)
         if math.isclose(demo, random):
             references[env_id] = Reference("raw", random, demo,
@@ -132,6 +142,8 @@ def reference_scores(env_ids: Iterable[str], cache: str | Path) -> dict[str, Ref
     envs = {env_id: {"normalisation": ref.kind, "random": ref.random, "reference": ref.top,
                      "score_key": ref.key, "note": ref.note}
             for env_id, ref in references.items()}
-    atomic_write_text(cache, json.dumps({"episodes": REFERENCE_EPISODES, "seed": REFERENCE_SEED,
-                                         "envs": {**cached, **envs}}, indent=2) + "\n")
+    stored = {"episodes": episodes, "seed": REFERENCE_SEED, "envs": {**cached, **envs}}
+    if demo_set != "current":  # the committed caches of the first protocol stay as they were
+        stored["demo_set"] = demo_set
+    atomic_write_text(cache, json.dumps(stored, indent=2) + "\n")
     return references

@@ -24,6 +24,7 @@ from routine_gym.experiments.paper import (
     imitation,
     rl,
     scalability,
+    tune,
 )
 from routine_gym.experiments.specs import BUDGETS, Builder, Entry
 from routine_gym.plumbing.errors import UsageError
@@ -47,6 +48,7 @@ def register(experiment: Experiment) -> Experiment:
     return experiment
 
 
+register(tune.EXPERIMENT)
 register(imitation.EXPERIMENT)
 register(rl.EXPERIMENT)
 register(curves.EXPERIMENT)

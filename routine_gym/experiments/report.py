@@ -38,7 +38,7 @@ TensorBoard and the envs load when a report is written.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -52,6 +52,7 @@ from routine_gym.experiments.reference import (
 )
 from routine_gym.experiments.registry import EXPERIMENTS
 from routine_gym.experiments.results import RunRecord, load_runs
+from routine_gym.experiments.specs import BUDGETS
 from routine_gym.experiments.writing import Writer, num, table
 from routine_gym.plumbing.atomic import atomic_write_text
 from routine_gym.plumbing.errors import UsageError, one_line
@@ -73,7 +74,8 @@ def _status_lines(runs: list[RunRecord]) -> list[str]:
     return [line + ".", ""]
 
 
-def _normalisation_lines(references: Mapping[str, Reference]) -> list[str]:
+def _normalisation_lines(references: Mapping[str, Reference], demo_set: str = "first",
+                         episodes: int = REFERENCE_EPISODES) -> list[str]:
     rows = []
     for env_id, ref in sorted(references.items()):
         kind = {"human": "human-normalised (published table)",
@@ -84,11 +86,46 @@ def _normalisation_lines(references: Mapping[str, Reference]) -> list[str]:
             "Normalised score per game: `(score − random)/(reference − random)`. Atari games "
             "(a key in `routine_gym.metrics.HUMAN_RANDOM_SCORES`) are human-normalised "
             "(reference: the human score); other games are demo-normalised (reference: the "
-            "best episode of the shipped demo; random: the uniformly random policy's mean "
-            f"over {REFERENCE_EPISODES} episodes from seed {REFERENCE_SEED}); a game with "
+            f"best episode of the shipped demo{_set_note(demo_set)}; random: the uniformly "
+            f"random policy's mean over {episodes} episodes from seed {REFERENCE_SEED}); a game "
+            "with "
             "neither keeps its raw score and is left out of the aggregates. Cached in "
             "`reference_scores.json`.", "",
             *table(("env", "normalisation", "random", "reference", "note"), rows)]
+
+
+def _demo_lines(out: Path) -> list[str]:
+    """The demos the sweep's runs mined, as its manifests recorded them (sweeps written before
+    2026-12-06 recorded none: nothing)."""
+    import json
+
+    used: dict[str, dict] = {}
+    for name in EXPERIMENTS:
+        path = out / f"{name}.json"
+        try:
+            demos = json.loads(path.read_text()).get("demos") if path.exists() else None
+        except (OSError, ValueError):
+            demos = None
+        if isinstance(demos, dict):
+            used.update({k: v for k, v in demos.items() if isinstance(v, dict)})
+    if not used:
+        return []
+    rows = [(env_id, f"`demos/{d.get('file')}`", d.get("demo_set", "–"),
+             num(d["score"], 1) if isinstance(d.get("score"), int | float) else "–",
+             str(d.get("sha256", ""))[:12]) for env_id, d in sorted(used.items())]
+    return ["", "## Demos", "",
+            "The shipped demo each game's routines were mined from (`routine_gym.demo."
+            "DEMO_SETS`; `routine-gym show-demos` lists both sets):", "",
+            *table(("env", "file", "demo set", "score", "SHA-256 (first 12)"), rows)]
+
+
+def _set_note(demo_set: str) -> str:
+    """Which demos a report's references are (nothing for the first protocol's, whose reports
+    said nothing of it)."""
+    if demo_set == "first":
+        return ""
+    return (f" of the `{demo_set}` demo set (`routine_gym.demo.DEMO_SETS`; MinAtar: the "
+            "10M-step experts' demos of `demos/README.md`)")
 
 
 def report_files() -> tuple[str, ...]:
@@ -101,7 +138,8 @@ def report_files() -> tuple[str, ...]:
 
 
 def write_report(out: str | Path, *, reps: int = 2000, seed: int = 0,
-                 beside: str | Path | None = None) -> list[Path]:
+                 beside: str | Path | None = None, folder: str | Path | None = None,
+                 progress: Callable[[str], None] | None = None) -> list[Path]:
     """Aggregate the sweep in `out` and write `out/report/` (see the module docstring).
 
     The report only reads the sweep folder, so it may be written while a sweep runs there (it
@@ -115,6 +153,10 @@ def write_report(out: str | Path, *, reps: int = 2000, seed: int = 0,
         seed: seed of the resampling (the same seed, the same intervals).
         beside: another sweep folder whose rl experiment ran at another budget: the report
             also compares the two budgets (`budget_comparison`).
+        folder: where the report goes (`report --out`); default `out/report`.
+        progress: called with one line before each step that takes time (reading the
+            sweep, the reference scores, each experiment, the budgets side by side), so a
+            report of a large sweep is not a minute of silence.
 
     Returns:
         The paths written: each experiment's PNG and CSV, `reference_scores.json`, and
@@ -135,12 +177,12 @@ def write_report(out: str | Path, *, reps: int = 2000, seed: int = 0,
     if not out.is_dir():
         raise UsageError(f"{out}: no such sweep folder (write one with `routine-gym "
                          "experiment run --out`)")
-    folder = out / "report"
+    folder = out / "report" if folder is None else Path(folder)
     if folder.exists() and not folder.is_dir():
         raise UsageError(f"{folder}: a file, where the report's folder goes; move it away")
     sides = budget_comparison.load_sides(out, beside) if beside is not None else None
     try:
-        written = _write_report(out, folder, reps, seed, sides)
+        written = _write_report(out, folder, reps, seed, sides, progress or (lambda line: None))
         for name in report_files():
             stale = folder / name
             if stale not in written and (stale.is_file() or stale.is_symlink()):
@@ -160,8 +202,9 @@ def _sweep_note(out: Path) -> list[str]:
 
 
 def _write_report(out: Path, folder: Path, reps: int, seed: int,
-                  sides: tuple[budget_comparison.Side, budget_comparison.Side] | None
-                  ) -> list[Path]:
+                  sides: tuple[budget_comparison.Side, budget_comparison.Side] | None,
+                  progress: Callable[[str], None]) -> list[Path]:
+    progress(f"reading the runs of {out}")
     results: dict[str, Mapping[str, Any] | None] = {}
     manifests = {name: load_runs(out, name, results) for name in EXPERIMENTS}
     if all(m is None for m in manifests.values()):
@@ -170,7 +213,13 @@ def _write_report(out: Path, folder: Path, reps: int, seed: int,
     envs = {r.env_id for name, experiment in EXPERIMENTS.items()
             if experiment.normalised and manifests[name]
             for r in manifests[name].runs if r.role == "main" and r.finished}
-    references = reference_scores(envs, folder / "reference_scores.json")
+    progress(f"reference scores of {len(envs)} game(s) (the random policy's is played once "
+             "per game, then cached in reference_scores.json)")
+    budget_names = {m.budget for m in manifests.values() if m is not None}
+    sizes = BUDGETS.get(min(budget_names)) if len(budget_names) == 1 else None
+    demo_set = sizes.demo_set if sizes is not None else "first"
+    episodes = sizes.reference_episodes if sizes is not None else REFERENCE_EPISODES
+    references = reference_scores(envs, folder / "reference_scores.json", demo_set, episodes)
     w = Writer(folder, references, reps, seed)
     w.written.append(folder / "reference_scores.json")
 
@@ -201,10 +250,14 @@ def _write_report(out: Path, folder: Path, reps: int, seed: int,
             lines += ["No finished run: no figure.", ""]
             continue
         lines += [f"Figure: `{experiment.file}.png`, data: `{experiment.file}.csv`.", ""]
+        progress(f"{experiment.figure} ({name}): {sum(r.finished for r in main)} finished "
+                 "run(s), bootstrap CIs and figure")
         lines += experiment.section(w, main)
     if sides is not None:
+        progress("the rl experiment at both budgets (--beside)")
         lines += budget_comparison.section(w, *sides, out)
-    lines += _normalisation_lines(references)
+    lines += _normalisation_lines(references, demo_set, episodes)
+    lines += _demo_lines(out)
     atomic_write_text(folder / "report.md", "\n".join(lines).rstrip() + "\n")
     w.written.append(folder / "report.md")
     return w.written

@@ -124,10 +124,31 @@ def _write_manifest(out: Path, name: str, budget: str, entries: Sequence[Entry])
                 "title": experiment.title, "figure": experiment.figure,
                 "description": BUDGETS[budget].description, "updated": utc_now(),
                 "left_out": left_out(name, budget),
+                "demos": demos_used(budget, {e.env_id for e in entries}),
                 "runs": sorted((json.loads(r) for r in rows),
                                key=lambda r: (r["role"] != "expert", r["env_id"], r["method"],
                                               json.dumps(r["variant"]), r["seed"]))}
     atomic_write_text(path, json.dumps(manifest, indent=2) + "\n")
+
+
+def demos_used(budget: str, env_ids: set[str]) -> dict[str, dict[str, Any]]:
+    """The shipped demo each game of a sweep mines at `budget` (its demo set's file): the path
+    under `demos/`, the demo set, its score and its SHA-256 (a game whose demo an expert of the
+    sweep records has none here)."""
+    import hashlib
+
+    from routine_gym.demo import DEMOS_DIR, Demo, shipped_demo_path
+
+    demo_set = BUDGETS[budget].demo_set
+    used = {}
+    for env_id in sorted(env_ids):
+        path = shipped_demo_path(env_id, demo_set)
+        if path is None:
+            continue
+        used[env_id] = {"file": os.path.relpath(path, DEMOS_DIR), "demo_set": demo_set,
+                        "score": Demo.load(path).score,
+                        "sha256": hashlib.sha256(Path(path).read_bytes()).hexdigest()}
+    return used
 
 
 def _steps_done(runs: Path, key: str) -> int:

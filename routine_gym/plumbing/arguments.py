@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import io
 import math
+import os
 import sys
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import fields
@@ -19,27 +20,68 @@ from typing import Any
 
 from routine_gym.plumbing.errors import UsageError
 
-__all__ = ["DOMAINS", "ExtraChecks", "check_args", "given_flags", "parse_args"]
+__all__ = ["DOMAINS", "ExtraChecks", "check_args", "given_flags", "parse_args", "usable_cpus"]
 
 
 # -- the argument check ------------------------------------------------------------------------
 
-#: Each numeric flag's domain, by `Args` field name: (test, what the message says it needs). A
+def usable_cpus() -> int:
+    """The CPUs this process may run on (its affinity mask where the OS has one)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # macOS, Windows
+        return os.cpu_count() or 1
+
+
+def _between(low: int, high: int, why: str = "") -> tuple[Callable[[Any], bool],
+                                                        Callable[[Any], str]]:
+    """A domain `[low, high]`; the message names the bound the value is past."""
+    return (lambda v: low <= v <= high, lambda v: f"≥ {low}" if v < low else f"≤ {high:,}{why}")
+
+
+# Upper bounds of the flags that memory or threads follow from: a value past them is a typo or
+# a misunderstanding, and would otherwise crash (torch's 100,000 threads: a segfault), hang
+# (10^7 envs: 2 GB and counting) or die of a MemoryError after minutes. Each is far above
+# any setting of the paper or of CleanRL; the memory the rollout or replay storage takes at
+# the env's real observation size is checked again where it is allocated
+# (`routine_gym.plumbing.memory.check_memory`).
+#: torch's threads: more than the CPUs only make its workers wait for each other (1,000 on 2
+#: CPUs turned an 8 s run into more than 120 s); 4x leaves room for a deliberate experiment.
+MAX_TORCH_THREADS = 4 * usable_cpus()
+#: Parallel envs: 16x the largest default (Procgen PPO's 64); each is a game in memory.
+MAX_ENVS = 1024
+#: Steps per env in a rollout (2^20; CleanRL's longest is 2,048).
+MAX_ROLLOUT_STEPS = 1 << 20
+#: A minibatch or replay batch, in transitions (2^20).
+MAX_BATCH = 1 << 20
+#: Replay memory, in transitions (100x SQIL's default of 10^5; Atari frames: 7 GB).
+MAX_BUFFER = 10_000_000
+#: Evaluation and demo episodes: every step of every episode is kept until the end (100x the
+#: largest default, 100).
+MAX_EPISODES = 10_000
+#: Routines in a library (the agent's action space grows by each; the paper's K is 3 to 5).
+MAX_ROUTINES = 1_000
+#: A routine's length: the rollout storage keeps max-length steps of each decision.
+MAX_ROUTINE_LENGTH = 1_024
+
+#: Each numeric flag's domain, by `Args` field name: (test, what the message says it needs, or a
+#: function of the value giving it). A
 #: flag of one script alone has its rule in that script's module-level `extra_checks(args)`;
-#: tests/test_args_domains.py checks that every numeric flag of every script has one or the other.
+#: tests/test_args_domains.py checks that every numeric flag of every script has one or the
+#: other, and that every flag memory or threads follow from has an upper bound.
 _AT_LEAST_1 = (lambda v: v >= 1, "≥ 1")
 _AT_LEAST_0 = (lambda v: v >= 0, "≥ 0")
 _POSITIVE = (lambda v: v > 0, "> 0")
 _UNIT = (lambda v: 0 < v <= 1, "in (0, 1]")
-DOMAINS: dict[str, tuple[Callable[[Any], bool], str]] = {
+DOMAINS: dict[str, tuple[Callable[[Any], bool], str | Callable[[Any], str]]] = {
     "total_timesteps": _AT_LEAST_1,
     "gradient_steps": _AT_LEAST_1,
-    "num_envs": _AT_LEAST_1,
-    "num_steps": _AT_LEAST_1,
-    "num_routines": _AT_LEAST_0,
+    "num_envs": _between(1, MAX_ENVS),
+    "num_steps": _between(1, MAX_ROLLOUT_STEPS),
+    "num_routines": _between(0, MAX_ROUTINES),
     "alpha": _AT_LEAST_1,
-    "min_routine_length": (lambda v: v >= 2, "≥ 2"),
-    "max_routine_length": (lambda v: v >= 2, "≥ 2"),
+    "min_routine_length": _between(2, MAX_ROUTINE_LENGTH),
+    "max_routine_length": _between(2, MAX_ROUTINE_LENGTH),
     "length_weight": _AT_LEAST_0,
     "gamma": _UNIT,
     "gae_lambda": (lambda v: 0 <= v <= 1, "in [0, 1]"),
@@ -54,26 +96,29 @@ DOMAINS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "rmsprop_eps": _POSITIVE,
     "temperature": _POSITIVE,
     "tau": _UNIT,
-    "batch_size": _AT_LEAST_1,
-    "buffer_size": (lambda v: v >= 8, "≥ 8"),
+    "batch_size": _between(1, MAX_BATCH),
+    "buffer_size": _between(8, MAX_BUFFER),
     "train_frequency": _AT_LEAST_1,
     "target_network_frequency": _AT_LEAST_1,
     "lambda_sample": _AT_LEAST_0,
     "learning_starts": _AT_LEAST_0,
-    "num_minibatches": _AT_LEAST_1,
+    "num_minibatches": _between(1, MAX_BATCH),
     "update_epochs": _AT_LEAST_1,
     "prim_epochs": _AT_LEAST_1,
-    "disc_minibatches": _AT_LEAST_1,
+    "disc_minibatches": _between(1, MAX_BATCH),
     "disc_epochs": _AT_LEAST_1,
     "clip_coef": _POSITIVE,
-    "eval_episodes": _AT_LEAST_0,
+    "eval_episodes": _between(0, MAX_EPISODES),
     "eval_max_steps": _AT_LEAST_1,
-    "demo_episodes": _AT_LEAST_1,
+    "demo_episodes": _between(1, MAX_EPISODES),
     "checkpoint_every": _AT_LEAST_0,
     "log_every": _AT_LEAST_1,
-    "torch_threads": _AT_LEAST_0,
+    "torch_threads": _between(
+        0, MAX_TORCH_THREADS, f" (4 × the {usable_cpus()} CPUs this process may use)"),
     "num_levels": _AT_LEAST_0,
     "start_level": _AT_LEAST_0,
+    # Its other rules (the blocks of `plumbing.seeds`) depend on other flags: `stride_checks`.
+    "seed_stride": _AT_LEAST_1,
     # NumPy's global seed (`np.random.seed`) takes no other; Gymnasium refuses negative ones.
     "seed": (lambda v: 0 <= v < 2**32, "in [0, 2**32 - 1]"),
 }
@@ -122,6 +167,8 @@ def check_args(args: Any, extra: ExtraChecks = ()) -> None:
         test, needs = DOMAINS[f.name]
         bad_number = isinstance(value, float) and not math.isfinite(value)
         if bad_number or not test(value):
+            if callable(needs):
+                needs = needs(value)
             raise UsageError(f"{_flag(f.name)} needs to be {needs}, actual value: {value}")
     for f in fields(args):
         value = getattr(args, f.name)

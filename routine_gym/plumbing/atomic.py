@@ -23,11 +23,13 @@ import os
 import re
 import secrets
 import stat
+from collections.abc import Iterable
 
 from routine_gym.plumbing.errors import UsageError
 
 __all__ = [
     "atomic_write_bytes",
+    "atomic_write_chunks",
     "atomic_write_text",
     "check_folder",
     "check_name",
@@ -192,6 +194,12 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
         UsageError: `path` exists and is not a regular file (a folder, a device, a pipe), a
             folder on its way is a file, or it is no name for a file (`check_name`).
     """
+    atomic_write_chunks(path, (data,))
+
+
+def atomic_write_chunks(path: str | os.PathLike, chunks: Iterable[bytes]) -> None:
+    """`atomic_write_bytes` of the concatenated `chunks`, written as they come, so a large
+    file (a long video) is never whole in memory."""
     check_name(path)
     path = os.path.abspath(os.fspath(path))
     folder = os.path.dirname(path)
@@ -206,7 +214,8 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
         # open() applies the umask itself; os.umask would change it for every thread.
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         with os.fdopen(fd, "wb") as f:
-            f.write(data)
+            for chunk in chunks:
+                f.write(chunk)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)

@@ -6,9 +6,10 @@ The scripts in `algos/` (through `routine_gym.plumbing.run.run_script`) and the 
 command print it as one line on stderr, `SCRIPT: error: MESSAGE`, and exit with code 2, without a
 traceback; so do Gymnasium's own errors (an unknown env id) and a missing file. `--debug` (or
 `ROUTINE_GYM_DEBUG=1` in the environment) shows the traceback instead. Anything else is a bug and
-keeps its traceback. A full disk (or quota) is no bug and no mistake either: it is one line too
-(`disk_full`), with exit code 1, saying that nothing already written was lost (every file is
-written whole through `routine_gym.plumbing.atomic`, so the last checkpoint is intact).
+keeps its traceback. A training run that diverges (`routine_gym.plumbing.divergence`) is one line
+too, with exit code 1: the command was valid, the run failed. So is a full disk (or quota)
+(`disk_full`), saying that nothing already written was lost (every file is written whole
+through `routine_gym.plumbing.atomic`, so the last checkpoint is intact).
 """
 
 from __future__ import annotations

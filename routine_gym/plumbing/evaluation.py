@@ -31,6 +31,7 @@ import numpy as np
 from gymnasium.wrappers import RecordEpisodeStatistics
 
 from routine_gym.demo import Demo, record_agent_demo
+from routine_gym.demo.collect import _policy_caller
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import default_env_kwargs, preprocess
 from routine_gym.library import RoutineLibrary
@@ -60,7 +61,8 @@ def evaluate_policy(
 
     Args:
         env_id: the env.
-        policy: maps an observation of the agent's view to an action of `Discrete(n + K)`.
+        policy: maps an observation of the agent's view to an action of `Discrete(n + K)`;
+            called as `policy(obs, env)` when it has two required positional parameters.
         episodes: episodes to run, reset with seeds `seed, seed + 1, …`.
         seed: the first reset seed.
         demo: the demonstration whose best episode is the reference trajectory `ι_d` of the
@@ -91,13 +93,19 @@ def evaluate_policy(
             from routine_gym.video import FrameRecorder
 
             # On the recorded env: the same primitive steps as the demo of the episodes.
-            env = films = FrameRecorder(env, record=lambda episode: episode < VIDEO_EPISODES)
+            # Frames wait on disk beside the GIFs, not in memory (routine_gym.video).
+            env = films = FrameRecorder(env, record=lambda episode: episode < VIDEO_EPISODES,
+                                        spool_dir=video_folder)
         return preprocess(RecordEpisodeStatistics(env), env_id, training=False)
 
     choices: list[list[int]] = []  # the policy's decisions, per episode (for the captions)
+    # Filming wraps the policy: the wrapper takes `(obs, env)` and calls the policy as
+    # `record_agent_demo` would have (`policy(obs, env)` when it takes two arguments, as the
+    # option policies of compile_a2c.py and option_critic.py do).
+    call = _policy_caller(policy)
 
-    def act(obs: np.ndarray) -> int:
-        action = int(np.asarray(policy(obs)).reshape(-1)[0])
+    def act(obs: np.ndarray, env: gym.Env) -> int:
+        action = int(np.asarray(call(obs, env)).reshape(-1)[0])
         while len(choices) <= films.episode:
             choices.append([])
         choices[films.episode].append(action)
@@ -161,6 +169,7 @@ def _write_videos(folder: str, played: Demo, films: Any, choices: list[list[int]
                                  played.num_actions, routines, played.action_meanings)
         captions.append(f"end of episode {k}: return {episode.score:g}")
         write_gif(frames, captions, os.path.join(folder, f"eval-episode-{k}.gif"), fps=fps)
+        frames.close()
     print(f"{env_id}: {len(films.episodes)} evaluation video(s) in {folder}", flush=True)
 
 

@@ -9,10 +9,13 @@ script's own draws), sets torch's threads, keeps freed memory for reuse
 (`routine_gym.plumbing.memory`) and picks the device. The `Run` it returns holds the
 run's lifecycle, so a script's `main` holds only its algorithm: `run.resume(...)` names what a
 checkpoint holds and puts it back on `--resume` (returning the step counters),
-`run.checkpoint_if_due(...)` saves one every `--checkpoint-every` steps (with every RNG state
-and the `Args` as JSON), and `run.finish(policy, ...)` saves the last checkpoint and the model,
+`run.checkpoint_if_due(...)` saves one every `--checkpoint-every` steps (with every RNG state,
+the `Args` as JSON, and the training film's episode count, so a resumed `--capture-video` run
+goes on numbering its films), and `run.finish(policy, ...)` saves the last checkpoint and the model,
 evaluates (`eval.json`, `--extra-evals`), records `--record-demo` and closes the writer; files
-go through the one atomic writer of `routine_gym.plumbing.atomic`. With `--track` the writer's
+go through the one atomic writer of `routine_gym.plumbing.atomic`. A checkpoint is never
+written, nor the model evaluated, once a parameter or an optimizer state is not finite: the run
+stops with one line and exit code 1 (`routine_gym.plumbing.divergence`). With `--track` the writer's
 scalars also go to Weights & Biases (`routine_gym.plumbing.tracking`), and the W&B run id
 travels in the checkpoints so that `--resume` continues the same W&B run.
 
@@ -39,10 +42,17 @@ import torch
 from routine_gym.plumbing.arguments import ExtraChecks, check_args, given_flags, parse_args
 from routine_gym.plumbing.atomic import atomic_write_bytes, check_folder, check_writable
 from routine_gym.plumbing.checkpoint import CHECKPOINT_NAME, resume_settings, write_checkpoint
+from routine_gym.plumbing.divergence import (
+    EXIT_CODE,
+    TrainingDiverged,
+    as_divergence,
+    check_parameters,
+)
 from routine_gym.plumbing.errors import UsageError
 from routine_gym.plumbing.folder_lock import LOCK_FILE, hold_folder
 from routine_gym.plumbing.memory import keep_freed_memory
 from routine_gym.plumbing.rng import rng_state, set_rng_state
+from routine_gym.plumbing.seeds import demo_seed, eval_seed, stride_checks
 
 __all__ = [
     "Every",
@@ -76,7 +86,22 @@ def run_script(main: Callable[[Any], Any], args_type: type,
     debug = debug_requested(argv)
     script = os.path.basename(sys.argv[0])
     try:
-        main(parse_args(args_type, renamed, argv))
+        try:
+            main(parse_args(args_type, renamed, argv))
+        except RuntimeError as exc:
+            # torch refusing to sample from an overflowed policy: the run diverged.
+            diverged = as_divergence(exc, _RUNS[-1].step if _RUNS else None)
+            if diverged is None:
+                raise
+            raise diverged from exc
+    except TrainingDiverged as exc:
+        # One line and exit code 1 (the command was valid, the run failed); the run folder and
+        # its last checkpoint stay, with no eval.json (routine_gym.plumbing.divergence).
+        _end_tracking(exit_code=EXIT_CODE)
+        if debug:
+            raise
+        print(f"{script}: error: {one_line(exc)}", file=sys.stderr)
+        raise SystemExit(EXIT_CODE) from None
     except expected_errors() as exc:
         for run in _NEW_RUNS:
             _remove_failed_run(run)
@@ -145,6 +170,8 @@ class Run:
     """The W&B run the writer's scalars also go to (`--track`; None without)."""
     wandb_run_id: str | None = None
     """The W&B run id the checkpoints keep: this run's, or the resumed checkpoint's."""
+    step: int | None = None
+    """The step counter at the end of the last iteration (`checkpoint_if_due`), for reports."""
     release: Callable[[], None] | None = None
     """Releases the run folder's lock (`routine_gym.plumbing.folder_lock`), held from the
     start; `finish` calls it (a process that dies drops it anyway)."""
@@ -227,6 +254,25 @@ class Run:
             library.save(os.path.join(self.path, "routines.json"))
         return library
 
+    @property
+    def first_video_episode(self) -> int:
+        """The number of training env 0's first episode: 0 for a new run, else the episodes
+        the resumed checkpoint counted, so that `--capture-video`'s training films go on
+        numbering where the run left off instead of overwriting its first leg's."""
+        if self.checkpoint is None:
+            return 0
+        value = self.checkpoint.get("video_episodes", 0)
+        if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+            raise UsageError(f"--resume {self.args.resume}: its video_episodes is not a count "
+                             f"({value!r})")
+        return value
+
+    def _video_episodes(self) -> int:
+        """Env 0's episodes so far, for the checkpoint: counted by its `RecordEpisodeStatistics`
+        while this leg films (`--capture-video`), else the resumed count carried on."""
+        if self._filmed is not None and getattr(self.args, "capture_video", False):
+            return self.first_video_episode + int(self._filmed.get_attr("episode_count")[0])
+        return self.first_video_episode
     def routine_demo(self, purpose: str) -> Any:
         """The demo the run's routines are mined from and its evaluation aligns with (None
         with `--routine-library`): `--demo`, else the env's shipped one, loaded on a new run
@@ -255,7 +301,7 @@ class Run:
         return demo
 
     def resume(self, state: dict[str, Any], *, extra: dict[str, Any] | None = None,
-               count: str | None = None, **counters: int) -> Any:
+               count: str | None = None, filmed: Any = None, **counters: int) -> Any:
         """Name what the run's checkpoints hold; on `--resume`, put it back where it was.
 
         Args:
@@ -264,6 +310,9 @@ class Run:
                 them from `run.checkpoint` itself, before it builds what depends on them.
             count: the counter `--checkpoint-every` counts (default: the first); a script
                 with `--budget-unit decisions` names its decision counter.
+            filmed: the training vector env whose env 0 `--capture-video` films (made with
+                `first_video_episode=run.first_video_episode`): its episode count goes into
+                every checkpoint, so a resumed run's films go on numbering.
             counters: the step counters with their start values (`global_step=0,
                 iteration=0`); the first is the step counter `finish` reports.
 
@@ -272,6 +321,7 @@ class Run:
             a tuple in the order given.
         """
         self._state, self._extra = dict(state), dict(extra or {})
+        self._filmed = filmed
         self._counter_names = tuple(counters)
         self._count = count or self._counter_names[0]
         if self._count not in counters:
@@ -284,20 +334,28 @@ class Run:
             self.restore_rng()
             step = values[self._counter_names[0]]
             print(f"resumed {self.name} at step {step}")
+        self.step = values[self._counter_names[0]]
         self._checkpoints = Every(self.args.checkpoint_every, start=values[self._count])
         out = tuple(values[name] for name in self._counter_names)
         return out[0] if len(out) == 1 else out
 
+    def _check_state(self, counters: dict[str, int]) -> None:
+        """Refuse to go on with a non-finite parameter or optimizer state (`TrainingDiverged`)."""
+        check_parameters(counters[self._counter_names[0]], self._state)
+
     def _save_state(self, counters: dict[str, int]) -> None:
+        self._check_state(counters)  # a checkpoint never holds a diverged state
         self.save_checkpoint({
             **{key: target.state_dict() for key, target in self._state.items()},
             **{name: counters[name] for name in self._counter_names},
             **self._extra,
+            "video_episodes": self._video_episodes(),
         })
 
     def checkpoint_if_due(self, **counters: int) -> None:
         """Save a checkpoint when the counter `resume` named (its `count`) has passed the next
         multiple of `--checkpoint-every`; `counters` are the values of `resume`'s counters."""
+        self.step = counters[self._counter_names[0]]
         if self._checkpoints.due(counters[self._count]):
             self._save_state(counters)
 
@@ -329,6 +387,8 @@ class Run:
         from routine_gym.plumbing.evaluation import evaluate_policy, save_evaluation
 
         args, step = self.args, counters[self._counter_names[0]]
+        self.step = step
+        self._check_state(counters)  # no model saved nor evaluated once it is broken
         if args.checkpoint_every > 0:
             self._save_state(counters)
         if args.save_model:
@@ -339,14 +399,16 @@ class Run:
             videos = os.path.join(self.path, "videos") \
                 if getattr(args, "capture_video", False) else None
             result = evaluate_policy(args.env_id, policy, args.eval_episodes,
-                                     seed=args.seed + 10_000, demo=demo, routines=routines,
+                                     seed=eval_seed(args.seed, getattr(args, "seed_stride", 1)),
+                                     demo=demo, routines=routines,
                                      env_kwargs=env_kwargs, max_steps=max_steps,
                                      video_folder=videos)
             result.update(method=method, global_step=step, **(summary or {}))
             save_evaluation(result, self.path, self.writer, step)
             for levels in getattr(args, "extra_evals", ()):
                 other = evaluate_policy(args.env_id, policy, args.eval_episodes,
-                                        seed=args.seed + 10_000, routines=routines,
+                                        seed=eval_seed(args.seed, getattr(args, "seed_stride", 1)),
+                                        routines=routines,
                                         env_kwargs=level_env_kwargs(args, levels),
                                         max_steps=max_steps)
                 other.update(method=method, global_step=step, **(summary or {}), levels=levels)
@@ -378,7 +440,8 @@ class Run:
         # The demo marks the agent's decisions (each step of a chosen routine included) apart
         # from the steps the preprocessing injects (no-op start, FIRE, served lives).
         demo = record_agent_demo(
-            args.env_id, policy, num_episodes=args.demo_episodes, seed=args.seed + 20_000,
+            args.env_id, policy, num_episodes=args.demo_episodes,
+            seed=demo_seed(args.seed, getattr(args, "seed_stride", 1)),
             env_kwargs={**default_env_kwargs(args.env_id), **train_env_kwargs(args)},
             wrap_env=wrap, routines=routines,
             meta={"trained_steps": step, "command": " ".join(sys.argv),
@@ -416,6 +479,24 @@ def seed_and_tune(seed: int, torch_threads: int) -> None:
     keep_freed_memory()  # a minibatch's blocks are reused, not page-faulted in again
 
 
+def _with_stride_checks(extra: ExtraChecks) -> Callable[[Any], list]:
+    """A script's own argument rules and `--seed-stride`'s (`plumbing.seeds.stride_checks`)."""
+    return lambda args: [*(extra(args) if callable(extra) else extra), *stride_checks(args)]
+def profile_reward_scale(args: Any) -> None:
+    """Give a script's `--reward-scale` left unset (None) the env profile's
+    `EnvProfile.reward_scale`; a given flag wins, a resumed run keeps its saved scale. An env
+    id whose module cannot be imported is left to the run's env check, which names it (the
+    scale is then 1)."""
+    if not hasattr(args, "reward_scale") or args.reward_scale is not None:
+        return
+    from routine_gym.envs import profile_for
+
+    try:
+        args.reward_scale = profile_for(args.env_id).reward_scale
+    except ImportError:
+        args.reward_scale = 1.0
+
+
 def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
               budget: str = "total_timesteps", lower_budget: bool = False,
               extra_checks: ExtraChecks = (), preset: Callable[[Any], None] | None = None
@@ -441,6 +522,9 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
     """
     if preset is not None and not args.resume:
         preset(args)
+    extra_checks = _with_stride_checks(extra_checks)
+    if not args.resume:
+        profile_reward_scale(args)
     check_args(args, extra_checks)
     if getattr(args, "record_demo", None):
         check_writable(args.record_demo, "--record-demo", ".npz")  # before training, not after
@@ -507,12 +591,15 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
               tracking=tracking, wandb_run_id=wandb_run_id, release=release)
     if checkpoint is None:
         _NEW_RUNS.append(run)
+    _RUNS.append(run)
     return run
 
 
 #: The new runs this process started: `run_script` removes the folder of one that failed
 #: before it had a checkpoint or a result.
 _NEW_RUNS: list[Run] = []
+#: Every run this process started (`run_script` names the last one's step in a report).
+_RUNS: list[Run] = []
 #: The W&B runs this process started (`--track`): `run_script` ends those of a failed run.
 _TRACKED: list[Any] = []
 

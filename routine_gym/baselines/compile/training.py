@@ -21,6 +21,7 @@ import torch.nn.functional as F
 
 from routine_gym.baselines.compile.model import CompILE, CompILEConfig
 from routine_gym.imitation.agent_view import state_offsets
+from routine_gym.plumbing.divergence import check_update
 
 __all__ = [
     "Segmentation",
@@ -127,7 +128,9 @@ def train_compile(
         terms = model.negative_elbo(features, window_actions, recognition)
         optimizer.zero_grad()
         terms["loss"].backward()
-        nn.utils.clip_grad_norm_(model.parameters(), 10.0)
+        grad_norm = nn.utils.clip_grad_norm_(model.parameters(), 10.0)
+        check_update(iteration, terms["loss"], grad_norm, unit="CompILE step",
+                     parts={f"CompILE {k}": v for k, v in terms.items() if k != "loss"})
         optimizer.step()
         if iteration % log_every == 0 or iteration == iterations:
             entry = {"iteration": iteration, **{k: v.item() for k, v in terms.items()}}
@@ -277,7 +280,9 @@ def fit_options(
         loss = policy_loss + termination_loss
         optimizer.zero_grad()
         loss.backward()
-        nn.utils.clip_grad_norm_(model.parameters(), 10.0)
+        grad_norm = nn.utils.clip_grad_norm_(model.parameters(), 10.0)
+        check_update(step, loss, grad_norm, unit="CompILE option step", parts={
+            "option policy loss": policy_loss, "termination loss": termination_loss})
         optimizer.step()
         if step % 100 == 0 or step == steps:
             log.append({"step": step, "policy_loss": policy_loss.item(),

@@ -9,6 +9,26 @@ tests one explanation on the rl experiment's games and seeds.
 - `MacroAction, decisions budget`: routines as black boxes at A2C's number of updates, to tell
   the routines' content from RAPL's use of them.
 
+At a budget of the fair protocol (`tune_seeds`: `fair`), every arm learns with its method's
+tuned settings (the tune experiment) and each arm changes one thing against the arm it is
+compared with:
+
+- `A2C, RAPL's updates`: A2C with rollouts of round(5 × RAPL-A2C's steps per decision) steps
+  (`derived.rollout_for_updates`), so it makes RAPL-A2C's number of updates on its own frames:
+  against A2C, the cost of fewer updates alone.
+- `RAPL-A2C, A2C's updates`: RAPL-A2C with rollouts sized in primitive steps (`--rollout-unit
+  steps`), so it makes A2C's number of updates on A2C's frames: against RAPL-A2C, the gain of
+  more updates alone.
+- `RAPL-A2C, authors' code` against `A2C, constant lr`: the preset's constant learning rate
+  on both sides (each its method's best constant-lr grid point).
+- `MacroAction, A2C's updates` against `RAPL-A2C, A2C's updates`: the same routines as black
+  boxes, at the same updates and frames.
+
+Each comparison's verdict comes from Welch's t-test over seeds (`statistics.welch`), worded
+better / worse / no evidence with the difference and the p-value; the first protocol's budgets
+get the same test of each variant against A2C (the rule before it, a margin of the larger
+standard error, called a variant with more noise level with A2C).
+
 The figure: per game, the mean final score of each variant with its standard error over seeds
 (top), then RAPL's primitive steps per decision and the share of its decisions that chose a
 routine over training (mean over seeds); `diagnosis_runs`: each run's final score against its
@@ -29,23 +49,52 @@ from routine_gym.experiments.results import RunRecord
 from routine_gym.experiments.run_counters import mean_bins as _binned
 from routine_gym.experiments.run_counters import run_counter as _counter
 from routine_gym.experiments.specs import Builder, Entry
-from routine_gym.experiments.statistics import standard_error
+from routine_gym.experiments.statistics import Comparison, standard_error, welch
 from routine_gym.experiments.writing import Writer, num, pct, table
 
 FILE = "diagnosis"
 RUNS_FILE = "diagnosis_runs"
+COMPARISONS_FILE = "diagnosis_comparisons"
 DECISIONS = "RAPL-A2C, decisions budget"
 AUTHORS = "RAPL-A2C, authors' code"
 MACRO = "MacroAction, decisions budget"
-VARIANTS = ("A2C", "RAPL-A2C", DECISIONS, AUTHORS, MACRO)
-VARIANT_COLOURS = {DECISIONS: "#ff9896", AUTHORS: "#8c564b", MACRO: "#aec7e8"}
+# The fair protocol's arms.
+A2C_AT_RAPL_UPDATES = "A2C, RAPL's updates"
+RAPL_AT_A2C_UPDATES = "RAPL-A2C, A2C's updates"
+A2C_CONSTANT = "A2C, constant lr"
+MACRO_AT_A2C_UPDATES = "MacroAction, A2C's updates"
+VARIANTS = ("A2C", "RAPL-A2C", DECISIONS, AUTHORS, MACRO, A2C_AT_RAPL_UPDATES,
+            RAPL_AT_A2C_UPDATES, A2C_CONSTANT, MACRO_AT_A2C_UPDATES)
+VARIANT_COLOURS = {DECISIONS: "#ff9896", AUTHORS: "#8c564b", MACRO: "#aec7e8",
+                   A2C_AT_RAPL_UPDATES: "#98df8a", RAPL_AT_A2C_UPDATES: "#d62728",
+                   A2C_CONSTANT: "#2ca02c", MACRO_AT_A2C_UPDATES: "#9467bd"}
 #: Each variant's marker in the per-run figure (runs of two variants may sit on one point).
-MARKERS = ("o", "s", "^", "D", "v")
+MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*", "h")
+#: Each comparison: (what it isolates, the arm, the arm it is compared with, the protocol it
+#: belongs to: `first`, `fair` or `both`). The first protocol's variants are each compared with
+#: A2C; the fair protocol's arms as the module's docstring says.
+COMPARISONS = (
+    ("routines as published", "RAPL-A2C", "A2C", "both"),
+    ("more updates, and more frames", DECISIONS, "A2C", "first"),
+    ("the authors' code, and a constant lr against A2C's annealed one", AUTHORS, "A2C", "first"),
+    ("black-box routines at more updates and frames", MACRO, "A2C", "first"),
+    ("fewer updates alone", A2C_AT_RAPL_UPDATES, "A2C", "fair"),
+    ("more updates alone", RAPL_AT_A2C_UPDATES, "RAPL-A2C", "fair"),
+    ("the authors' code at the same lr schedule", AUTHORS, A2C_CONSTANT, "fair"),
+    ("black-box routines at the same updates and frames", MACRO_AT_A2C_UPDATES,
+     RAPL_AT_A2C_UPDATES, "fair"),
+)
+#: The arms only the fair protocol has (their presence says which protocol a sweep is).
+FAIR_ARMS = (A2C_AT_RAPL_UPDATES, RAPL_AT_A2C_UPDATES, A2C_CONSTANT, MACRO_AT_A2C_UPDATES)
 
 
 def add_runs(b: Builder) -> None:
     """A2C and RAPL-A2C (the rl experiment's runs), and the three variants, on each rl game
-    and seed; a decisions budget is the budget's agent steps counted as decisions."""
+    and seed; a decisions budget is the budget's agent steps counted as decisions. At a
+    budget with tuning, the fair protocol's arms instead (`fair_runs`)."""
+    if b.budget.tune_seeds:
+        fair_runs(b)
+        return
     decisions = [("budget-unit", "decisions")]
     for env_id in b.budget.rl_games:
         for seed in b.seeds():
@@ -56,11 +105,29 @@ def add_runs(b: Builder) -> None:
             b.a2c("MacroAction", env_id, seed, {"diagnosis": "decisions"}, extra=decisions)
 
 
+def fair_runs(b: Builder) -> None:
+    """The fair protocol's arms (the module's docstring) on each rl game and seed, each at
+    its method's tuned settings."""
+    steps = [("rollout-unit", "steps")]
+    for env_id in b.budget.rl_games:
+        rapl = [b.a2c("RAPL-A2C", env_id, seed) for seed in b.seeds()]
+        spd = (("updates-of", (5, tuple(e.run.key for e in rapl))),)
+        for seed in b.seeds():
+            b.a2c("A2C", env_id, seed)
+            b.a2c("A2C", env_id, seed, {"diagnosis": "rapl-updates"}, derived=spd)
+            b.a2c("RAPL-A2C", env_id, seed, {"diagnosis": "a2c-updates"}, extra=steps)
+            authors_run(b, env_id, seed)
+            b.a2c("A2C", env_id, seed, {"diagnosis": "constant-lr"}, constant_lr=True)
+            b.a2c("MacroAction", env_id, seed, {"diagnosis": "a2c-updates"}, extra=steps)
+
+
 def authors_run(b: Builder, env_id: str, seed: int) -> Entry:
     """RAPL-A2C as the authors' code has it (`--authors`) on `env_id` and `seed`: this
     experiment's run, and the rl experiment's third method at the long budget (one key where
-    both have it). Its variant `{"diagnosis": "authors"}` is what `label` names `AUTHORS`."""
-    return b.a2c("RAPL-A2C", env_id, seed, {"diagnosis": "authors"}, extra=[("authors", True)])
+    both have it). Its variant `{"diagnosis": "authors"}` is what `label` names `AUTHORS`.
+    With tuning, RAPL-A2C's best constant-lr grid point (the preset's schedule)."""
+    return b.a2c("RAPL-A2C", env_id, seed, {"diagnosis": "authors"}, extra=[("authors", True)],
+                 constant_lr=True)
 
 
 def label(run: RunRecord) -> str | None:
@@ -69,11 +136,15 @@ def label(run: RunRecord) -> str | None:
     if kind is None:
         return run.method if run.method in ("A2C", "RAPL-A2C") else None
     return {("RAPL-A2C", "decisions"): DECISIONS, ("RAPL-A2C", "authors"): AUTHORS,
-            ("MacroAction", "decisions"): MACRO}.get((run.method, kind))
+            ("MacroAction", "decisions"): MACRO, ("A2C", "rapl-updates"): A2C_AT_RAPL_UPDATES,
+            ("RAPL-A2C", "a2c-updates"): RAPL_AT_A2C_UPDATES,
+            ("A2C", "constant-lr"): A2C_CONSTANT,
+            ("MacroAction", "a2c-updates"): MACRO_AT_A2C_UPDATES}.get((run.method, kind))
 
 
 class GameRow(NamedTuple):
-    """One game's row of the diagnosis CSV: each variant's mean score and standard error."""
+    """One game's row of the diagnosis CSV: each variant's mean score and standard error, and
+    the comparisons' verdicts in one line."""
 
     env_id: str
     means: dict[str, float]
@@ -81,49 +152,39 @@ class GameRow(NamedTuple):
     verdict: str
 
 
-def closes(score: float, error: float, a2c: float, a2c_error: float) -> bool:
-    """Whether a variant closes the gap to A2C: its mean at least A2C's less the larger of the
-    two standard errors over seeds (a NaN error counts as 0), so a variant and A2C whose
-    spreads overlap by that much are level.
+def comparisons(scores: dict[str, list[float]]) -> list[tuple[str, str, str, Comparison]]:
+    """Each comparison of `COMPARISONS` of the sweep's protocol whose two arms have runs in
+    `scores` (a game's final scores per variant): `(question, arm, against, Welch's test of
+    arm − against)`.
 
     Example:
-        >>> closes(9.5, 0.0, 10.0, 1.0), closes(8.0, 0.0, 10.0, 1.0), closes(8.0, 2.5, 10.0, 0.0)
-        (True, False, True)
+        >>> [(q, c.verdict) for q, _, _, c in comparisons({"A2C": [6, 7, 8],
+        ...                                                 "RAPL-A2C": [1, 2, 3]})]
+        [('routines as published', 'worse')]
     """
-    def finite(x: float) -> float:
-        return x if math.isfinite(x) else 0.0
+    protocol = "fair" if any(scores.get(arm) for arm in FAIR_ARMS) else "first"
+    out = []
+    for question, arm, against, belongs in COMPARISONS:
+        if belongs not in ("both", protocol):
+            continue
+        if scores.get(arm) and scores.get(against):
+            out.append((question, arm, against, welch(scores[arm], scores[against])))
+    return out
 
-    margin = max(finite(error), finite(a2c_error)) + 1e-9 * max(1.0, abs(a2c))  # rounding
-    return math.isfinite(score) and score >= a2c - margin
 
-
-def verdict(means: dict[str, float], errors: dict[str, float]) -> str:
-    """Which explanation a game's data supports (see the module's docstring).
+def verdict(scores: dict[str, list[float]]) -> str:
+    """A game's verdicts in one line: each comparison's arm, against, verdict, Δ and p.
 
     Example:
-        >>> verdict({"A2C": 10, "RAPL-A2C": 5, DECISIONS: 9.8, AUTHORS: 6}, {"A2C": 0.5})
-        'update-starved (the decisions budget closes the gap)'
+        >>> verdict({"A2C": [6, 7, 8], "RAPL-A2C": [1, 2, 3]})
+        'RAPL-A2C vs A2C: worse (Δ -5.00, p = 0.026)'
+        >>> verdict({"A2C": [6.0]})
+        'not enough runs'
     """
-    a2c, rapl = means.get("A2C", math.nan), means.get("RAPL-A2C", math.nan)
-    if not (math.isfinite(a2c) and math.isfinite(rapl)):
+    found = comparisons(scores)
+    if not found:
         return "not enough runs"
-
-    def reaches(variant: str) -> bool:
-        return closes(means.get(variant, math.nan), errors.get(variant, math.nan), a2c,
-                      errors.get("A2C", math.nan))
-
-    if reaches("RAPL-A2C"):
-        return "no gap (RAPL-A2C level with A2C within a standard error, or above)"
-    if not all(math.isfinite(means.get(v, math.nan)) for v in (DECISIONS, AUTHORS)):
-        return "not yet: a variant has no finished run"
-    found = []
-    if reaches(DECISIONS):
-        found.append("update-starved (the decisions budget closes the gap)")
-    if reaches(AUTHORS):
-        found.append("implementation choices (the authors' code closes the gap)")
-    if found:
-        return "; ".join(found)
-    return "none of these (neither closes the gap; routine content: see Fig. 6)"
+    return "; ".join(f"{arm} vs {against}: {c.describe()}" for _, arm, against, c in found)
 
 
 def _count(run: RunRecord, field: str) -> int | float:
@@ -142,13 +203,19 @@ def section(w: Writer, runs: list[RunRecord]) -> list[str]:
     variants = [v for v in VARIANTS if v in groups]
 
     rows: list[GameRow] = []
+    found: list[tuple[str, str, str, str, Comparison]] = []
     for g in games:
-        means, errors = {}, {}
+        means, errors, scores = {}, {}, {}
         for v in variants:
-            scores = [r.score for r in groups[v] if r.env_id == g]
-            means[v] = float(np.mean(scores)) if scores else math.nan
-            errors[v] = standard_error(scores) if len(scores) > 1 else math.nan
-        rows.append(GameRow(g, means, errors, verdict(means, errors)))
+            scores[v] = [r.score for r in groups[v] if r.env_id == g]
+            means[v] = float(np.mean(scores[v])) if scores[v] else math.nan
+            errors[v] = standard_error(scores[v]) if len(scores[v]) > 1 else math.nan
+        rows.append(GameRow(g, means, errors, verdict(scores)))
+        found += [(g, *c) for c in comparisons(scores)]
+    w.csv(COMPARISONS_FILE, ("env_id", "question", "arm", "against", "difference", "t", "df",
+                             "p", "verdict"),
+          [(g, q, arm, against, c.difference, c.t, c.df, c.p, c.verdict)
+           for g, q, arm, against, c in found])
     w.csv(FILE, ("env_id", *(f"{v} {s}" for v in variants for s in ("mean", "se")), "verdict"),
           [(row.env_id, *(x for v in variants for x in (row.means[v], row.errors[v])),
             row.verdict) for row in rows])
@@ -164,16 +231,18 @@ def section(w: Writer, runs: list[RunRecord]) -> list[str]:
     _draw(w, games, variants, groups)
     _draw_runs(w, games, per_run)
     lines = ["Each variant tests one explanation of RAPL-A2C's deficit (see the experiment's "
-             "docstring): the decisions budget gives RAPL as many gradient updates as A2C; the "
-             "authors' code changes what SPEC §5b lists; MacroAction at the decisions budget "
-             "uses the same routines as black boxes. S = mean over seeds of the final "
-             "evaluation's mean return ± its standard error over seeds; a variant *closes the "
-             "gap* when its S is at least A2C's less the larger of the two standard errors.",
+             "docstring). S = mean over seeds of the final evaluation's mean return ± its "
+             "standard error over seeds. Each comparison is Welch's t-test over seeds (ν = the "
+             "smaller count − 1), two-sided at 5 %: *better*, *worse* or *no evidence*, with "
+             "the difference of the means (Δ) and the p-value.",
              "",
-             *table(("game", *variants, "verdict"),
+             *table(("game", *variants),
                     [(g, *(f"{num(row.means[v], 1)} ± {num(row.errors[v], 1)}"
-                           for v in variants), row.verdict)
-                     for g, row in zip(games, rows, strict=True)])]
+                           for v in variants))
+                     for g, row in zip(games, rows, strict=True)]),
+             "",
+             *table(("game", "what it isolates", "arm", "against", "verdict"),
+                    [(g, q, arm, against, c.describe()) for g, q, arm, against, c in found])]
     count_rows = []
     for g in games:
         for v in variants:
@@ -269,4 +338,4 @@ EXPERIMENT = Experiment(
     name="diagnosis", version=1,
     title="Why RAPL-A2C loses to A2C: at equal updates, and as the authors' code has it",
     figure="Diagnosis", file=FILE, add_runs=add_runs, section=section, normalised=False,
-    methods=VARIANTS, colours=VARIANT_COLOURS, extra_files=(RUNS_FILE,))
+    methods=VARIANTS, colours=VARIANT_COLOURS, extra_files=(RUNS_FILE, COMPARISONS_FILE))

@@ -48,7 +48,7 @@ def add_runs(b: Builder) -> None:
         # A minimum length the game's shipped demo has no routine of: no runs, a manifest note.
         usable = []
         for k, length in settings:
-            if length == 2 or shipped_demo_has_routine(env_id, length):
+            if length == 2 or shipped_demo_has_routine(env_id, length, b.budget.demo_set):
                 usable.append((k, length))
             else:
                 b.left_out.append({
