@@ -57,7 +57,7 @@ from routine_gym.networks import (
 from routine_gym.plumbing.arguments import given_flags
 from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent, scalars_due
 from routine_gym.plumbing.divergence import check_update
-from routine_gym.plumbing.loading import load_demo
+from routine_gym.plumbing.loading import unused_routine_flags
 from routine_gym.plumbing.memory import check_rollout_memory
 from routine_gym.plumbing.run import (
     Every,
@@ -308,13 +308,15 @@ def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
              "paper unless --mode rapl"),
             ("prim_states", rapl_only or args.prim_states == "inside",
              "inside unless --mode rapl"),
-            ("selection", args.mode != "a2c" or args.selection == "paper",
-             "paper with --mode a2c (no routines)"),
             ("rollout_unit", args.rollout_unit == "decisions" or args.prim_states == "inside",
              "decisions with --prim-states first-n (its N primitive steps per env need N "
              "decisions per env)"),
             ("rollout_unit", args.rollout_unit == "decisions" or args.budget_unit == "steps",
-             "decisions with --budget-unit decisions (steps sizes rollouts in primitive steps)")]
+             "decisions with --budget-unit decisions (steps sizes rollouts in primitive steps)"),
+            ("prim_coef", rapl_only or args.prim_coef == 1.0, "1.0 unless --mode rapl"),
+            # A routine flag a run would not read: every one with --mode a2c, the mining
+            # flags and --demo with --routine-library.
+            *unused_routine_flags(args, "--mode a2c" if args.mode == "a2c" else None)]
 
 
 def action_meanings(args: Args) -> list[str] | None:
@@ -337,9 +339,8 @@ def main(args: Args) -> None:
     # Routines: mined from the demo (or loaded), printed with action names, saved with the run.
     demo, library = None, None
     if args.mode != "a2c":
-        resumed = run.checkpoint is not None and run.checkpoint["library"]
-        if args.routine_library is None and not resumed:
-            demo, args.demo = load_demo(args.env_id, args.demo, purpose=f"--mode {args.mode}")
+        # Loaded on --resume too (the library is the checkpoint's): the evaluation aligns with it.
+        demo = run.routine_demo(f"--mode {args.mode}")
         library = run.routines(demo, meanings=lambda: action_meanings(args),
                                env_kwargs=train_env_kwargs(args), required=f"--mode {args.mode}")
 

@@ -63,7 +63,7 @@ from routine_gym.envs.factory import make_primitive_env, make_vector_env
 from routine_gym.networks import ObservationEncoder, categorical_policy, layer_init
 from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent, scalars_due
 from routine_gym.plumbing.divergence import check_update
-from routine_gym.plumbing.loading import load_demo
+from routine_gym.plumbing.loading import unused_routine_flags
 from routine_gym.plumbing.memory import check_rollout_memory
 from routine_gym.plumbing.run import (
     Every,
@@ -288,8 +288,11 @@ def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
             ("prim_epochs", args.prim_epochs is None or args.update_epochs is None
              or args.prim_epochs <= args.update_epochs,
              f"≤ --update-epochs ({args.update_epochs})"),
-            ("selection", args.mode != "ppo" or args.selection == "paper",
-             "paper with --mode ppo (no routines)")]
+            ("prim_coef", args.mode == "rapl" or args.prim_coef == 1.0,
+             "1.0 unless --mode rapl"),
+            # A routine flag a run would not read: every one with --mode ppo, the mining
+            # flags and --demo with --routine-library.
+            *unused_routine_flags(args, "--mode ppo" if args.mode == "ppo" else None)]
 
 
 class Agent(nn.Module):
@@ -376,9 +379,8 @@ def main(args: Args) -> None:
     # Routines: mined from the demo (or loaded), printed with action names, saved with the run.
     demo, library = None, None
     if args.mode != "ppo":
-        resumed = run.checkpoint is not None and run.checkpoint["library"]
-        if args.routine_library is None and not resumed:
-            demo, args.demo = load_demo(args.env_id, args.demo, purpose=f"--mode {args.mode}")
+        # Loaded on --resume too (the library is the checkpoint's): the evaluation aligns with it.
+        demo = run.routine_demo(f"--mode {args.mode}")
         library = run.routines(demo, meanings=lambda: action_meanings(args),
                                env_kwargs=train_env_kwargs(args), required=f"--mode {args.mode}")
 

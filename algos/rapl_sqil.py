@@ -61,7 +61,7 @@ from routine_gym.imitation import agent_view_states, build_demo_transitions, sqi
 from routine_gym.networks import ObservationEncoder, layer_init
 from routine_gym.plumbing.counters import scalars_due
 from routine_gym.plumbing.divergence import check_update
-from routine_gym.plumbing.loading import check_demo_env, load_demo
+from routine_gym.plumbing.loading import check_demo_env, load_demo, unused_routine_flags
 from routine_gym.plumbing.memory import check_memory
 from routine_gym.plumbing.run import Every, run_script, start_run
 from routine_gym.replay_memory import FrameReplayMemory
@@ -169,7 +169,10 @@ CHECKPOINT_KEYS = ("model", "target", "optimizer", "global_step", "updates", "rn
 def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
     """SQIL's rule on top of `routine_gym.plumbing.arguments.DOMAINS`: a batch is half demo, half
     agent."""
-    return [("batch_size", args.batch_size >= 2, "≥ 2 (half demo, half agent)")]
+    return [("batch_size", args.batch_size >= 2, "≥ 2 (half demo, half agent)"),
+            # A routine flag the run would not read (the demo is SQIL's demo buffer: read).
+            *unused_routine_flags(args, "--num-routines 0" if args.num_routines == 0 else None,
+                                  demo_only_mined=False)]
 
 
 def main(args: Args) -> dict | None:

@@ -9,12 +9,16 @@ the new ones, never a partial or an empty one. The remains a killed writer leave
 their process is gone, so they never pile up. Only regular files are replaced: a folder, a
 device (`/dev/null`), a pipe or a link to one is refused. `check_writable` tells, before any
 work, whether a path could be written at all (a missing folder, a read-only place, a folder
-that is a file), so that nobody plays or trains for an output that cannot be saved.
+that is a file), so that nobody plays or trains for an output that cannot be saved; it and
+`check_folder` refuse a name no output should have too (`check_name`: an empty one, one that
+names a Minari dataset, `minari:ID`, or starts with another scheme, `xyz:`), and
+`check_writable` a file name without the extension of the format written there.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import re
 import secrets
@@ -28,11 +32,44 @@ __all__ = [
     "atomic_write_chunks",
     "atomic_write_text",
     "check_folder",
+    "check_name",
     "check_writable",
     "temporary_path",
 ]
 
 _TEMPORARY = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)-[0-9a-f]{12}\.tmp$")
+#: `minari:ID`, `s3:bucket`, `https://...`: a name that is not a local path (a file of such a
+#: name is written as `./minari:ID`).
+_SCHEME = re.compile(r"^(?P<scheme>[A-Za-z][A-Za-z0-9+.\-]*):")
+
+
+def check_name(path: str | os.PathLike, flag: str = "") -> None:
+    """Refuse a name no routine-gym output should have: an empty one, or one that starts with
+    a scheme, `minari:ID` (a Minari dataset: `routine-gym export` writes those) or any other
+    `xyz:`, which would otherwise become a file of that literal name in the current folder.
+    A file of such a name is still written when asked for as `./xyz:name`.
+
+    Args:
+        path: the output as the user gave it.
+        flag: the option that named it, for the message (`"--out"`).
+
+    Raises:
+        UsageError: one line naming the flag and the value.
+    """
+    text = os.fspath(path)
+    what = f"{flag} " if flag else ""
+    if not text.strip():
+        raise UsageError(f"{what}needs a path, actual value: {text!r}")
+    match = _SCHEME.match(text)
+    if match is None:
+        return
+    if match["scheme"] == "minari":
+        raise UsageError(f"{what}{text} names a Minari dataset, not a local path (a dataset "
+                         f"is written by `routine-gym export DEMO --minari ID`; ./{text} is a "
+                         "local path of that name)")
+    raise UsageError(f"{what}{text} starts with a scheme ({match['scheme']}:), not a local "
+                     f"path: routine-gym writes local files (./{text} is a local path of that "
+                     "name)")
 
 
 def temporary_path(path: str | os.PathLike) -> str:
@@ -85,7 +122,7 @@ def _first_file_above(folder: str) -> str | None:
         here = parent
 
 
-def check_writable(path: str | os.PathLike, flag: str = "") -> None:
+def check_writable(path: str | os.PathLike, flag: str = "", suffix: str | None = None) -> None:
     """Refuse, before any work, a path that cannot be written as a regular file.
 
     The rule of every routine-gym output: missing folders are made when the file is written
@@ -95,20 +132,29 @@ def check_writable(path: str | os.PathLike, flag: str = "") -> None:
     Args:
         path: the output file.
         flag: the option that named it, for the message (`"--out"`).
+        suffix: the extension of the format written there (`".npz"`), when it is fixed.
 
     Raises:
-        UsageError: the path is a folder or not a regular file, a folder on its way is a file,
-            or nothing can be created there (read-only, no permission).
+        UsageError: the name is not one an output should have (`check_name`), the path is a
+            folder or not a regular file, a folder on its way is a file, nothing can be
+            created there (read-only, no permission), or it lacks `suffix`.
     """
+    check_name(path, flag)
     path = os.fspath(path)
     what = f"{flag} " if flag else ""
+    if path.endswith(("/", os.sep)):
+        raise UsageError(f"{what}{path} names a folder; it needs a file name")
     _check_place(os.path.dirname(os.path.abspath(path)), f"{what}{path}")
     _refuse_irregular(path, what)
+    if suffix is not None and not path.lower().endswith(suffix.lower()):
+        raise UsageError(f"{what}needs a file name ending in {suffix} (the format written "
+                         f"there), actual value: {path}")
 
 
 def check_folder(folder: str | os.PathLike, flag: str = "") -> None:
     """Refuse, before any work, a folder that is a file, lies under one, or cannot be made or
     written (the run folders of `--run-dir`, a sweep's `--out`); nothing is created."""
+    check_name(folder, flag)
     folder = os.fspath(folder)
     what = f"{flag} " if flag else ""
     if os.path.exists(folder) and not os.path.isdir(folder):
@@ -145,8 +191,8 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     The folder is made when missing. The file gets the permissions `open()` would give it.
 
     Raises:
-        UsageError: `path` exists and is not a regular file (a folder, a device, a pipe), or a
-            folder on its way is a file.
+        UsageError: `path` exists and is not a regular file (a folder, a device, a pipe), a
+            folder on its way is a file, or it is no name for a file (`check_name`).
     """
     atomic_write_chunks(path, (data,))
 
@@ -154,6 +200,7 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
 def atomic_write_chunks(path: str | os.PathLike, chunks: Iterable[bytes]) -> None:
     """`atomic_write_bytes` of the concatenated `chunks`, written as they come, so a large
     file (a long video) is never whole in memory."""
+    check_name(path)
     path = os.path.abspath(os.fspath(path))
     folder = os.path.dirname(path)
     blocker = _first_file_above(folder)
@@ -172,7 +219,10 @@ def atomic_write_chunks(path: str | os.PathLike, chunks: Iterable[bytes]) -> Non
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+        if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            # A write's error names no file: name the target, for the one-line report.
+            raise OSError(exc.errno, exc.strerror, path) from exc
         raise

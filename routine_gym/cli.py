@@ -81,9 +81,9 @@ def cmd_mine(args: argparse.Namespace) -> int:
     _needs("--seed", args.seed, args.seed >= 0, "≥ 0")
     _needs("--max-routine-length", args.max_routine_length, args.max_routine_length >= 2, "≥ 2")
     _needs("--selection", args.selection, args.selection in SELECTIONS, " or ".join(SELECTIONS))
-    if args.out:
+    if args.out is not None:  # `--out ""` is refused, not taken as no --out
         _not_an_input(args.out, "--out", args.demo)
-        check_writable(args.out, "--out")
+        check_writable(args.out, "--out", ".json")
     demo = _load_demo(args.demo)
     proposer = make_proposer(
         args.proposer,
@@ -106,7 +106,7 @@ def cmd_mine(args: argparse.Namespace) -> int:
         f"{len(demo.actions)} actions, score {demo.score:g})"
     )
     print(library.describe())
-    if args.out:
+    if args.out is not None:
         library.save(args.out)
         print(f"saved to {args.out}")
     return 0
@@ -166,8 +166,10 @@ def cmd_upgrade(args: argparse.Namespace) -> int:
     if minari_dataset_id(args.demo) is not None:
         raise CLIError(f"upgrade rewrites a version-1 demo file; {args.demo} is a Minari "
                        "dataset, not a file")
-    out = args.out or args.demo  # in place by default: only a verified replay replaces it
-    check_writable(out, "--out")
+    # In place by default: only a verified replay replaces it. `--out ""` is refused, not
+    # taken as no --out.
+    out = args.demo if args.out is None else args.out
+    check_writable(out, "--out", None if args.out is None else ".npz")  # in place: its name
     demo = _load_demo(args.demo)
     version = _file_version(Path(args.demo))
     if version >= DEMO_VERSION:
@@ -272,8 +274,10 @@ def cmd_picture(args: argparse.Namespace) -> int:
     from routine_gym.mining import SequiturMiner
 
     _needs("--num-routines", args.num_routines, args.num_routines >= 1, "≥ 1")
+    _needs("--max-routines", args.max_routines, 1 <= args.max_routines <= 1000,
+           "in [1, 1000]")
     _not_an_input(args.out, "--out", args.source)
-    check_writable(args.out, "--out")
+    check_writable(args.out, "--out", ".png")
     if minari_dataset_id(args.source) is None and Path(args.source).is_dir():
         if args.routines is not None:
             raise CLIError(f"--routines names a demo's routines; {args.source} is a run folder, "
@@ -295,6 +299,8 @@ def cmd_picture(args: argparse.Namespace) -> int:
             library = SequiturMiner(num_routines=args.num_routines).mine(demo)
         for w in caught:
             print(f"warning: {w.message}", file=sys.stderr)
+    total = len(library)
+    library = pictures.top_routines(library, args.max_routines) if total else library
     picture = pictures.routine_picture(demo, library, source=args.source)
     pictures.save_png(pictures.draw_routine_picture(picture), args.out)
     frames = ("the demo's observations" if picture.replayed_steps == 0 else
@@ -302,6 +308,9 @@ def cmd_picture(args: argparse.Namespace) -> int:
     print(f"wrote {args.out}: {len(picture.films)} routine(s) of {picture.env_id} "
           f"({args.source}), frames from {frames}")
     print(pictures.describe_picture(picture))
+    if len(library) < total:
+        print(f"drew {len(library)} of {total} routines (the best by score); --max-routines "
+              "to change")
     return 0
 
 
@@ -365,7 +374,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     if args.expert_noise and args.policy != "expert":
         raise CLIError(f"--expert-noise is the scripted expert's noise; --policy {args.policy} "
                        "takes none (use --policy expert, or drop --expert-noise)")
-    check_writable(args.out, "--out")  # before recording: no run for an output that fails
+    check_writable(args.out, "--out", ".npz")  # before recording: no run for an output that fails
     from routine_gym.demo import record_agent_demo
     from routine_gym.envs.factory import default_env_kwargs
 
@@ -399,7 +408,7 @@ def cmd_play(args: argparse.Namespace) -> int:
         _needs("--fps", args.fps, args.fps >= 1, "≥ 1")
     if args.zoom is not None:
         _needs("--zoom", args.zoom, args.zoom > 0, "> 0")
-    check_writable(args.out, "--out")  # before anyone plays a session for nothing
+    check_writable(args.out, "--out", ".npz")  # before anyone plays a session for nothing
     if not _has_display():
         raise CLIError("play needs a display to show the game and read the keyboard, and none "
                        "is set (DISPLAY or WAYLAND_DISPLAY); record an agent with "
@@ -512,6 +521,10 @@ def cmd_experiment_run(args: argparse.Namespace) -> int:
         raise CLIError(f"{flag} names where --track logs: it needs --track")
     check_options(args.backend, args.jobs, args.cpus_per_run, args.address,
                   track=args.track)
+    if tracking is not None:  # before any run: a bad project would fail every one of them
+        from routine_gym.plumbing.tracking import check_tracking
+
+        check_tracking(tracking["project"], tracking["entity"])
     chosen = plan(args.name, args.budget, args.seeds, args.envs)
     install_signal_handlers()
     failed = 0
@@ -536,7 +549,11 @@ def cmd_experiment_run(args: argparse.Namespace) -> int:
 
 
 def cmd_experiment_report(args: argparse.Namespace) -> int:
+    from routine_gym.atomic import check_folder
     from routine_gym.experiments.report import write_report
+
+    if args.report_dir is not None:
+        check_folder(args.report_dir, "--out")  # minari:ID, xyz:, '', a file: before reading
 
     start = time.monotonic()
     pending: list[threading.Timer] = []
@@ -569,7 +586,7 @@ def cmd_experiment_report(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     from routine_gym.envs import quiet_ale
-    from routine_gym.errors import debug_requested, one_line
+    from routine_gym.errors import DISK_FULL_EXIT, debug_requested, disk_full, one_line
 
     quiet_ale()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -582,6 +599,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         if debug:
             raise
         parser.exit(2, f"routine-gym: error: {one_line(exc)}\n")
+    except OSError as exc:
+        line = disk_full(exc)
+        if line is None or debug:
+            raise
+        parser.exit(DISK_FULL_EXIT, f"routine-gym: error: {line}\n")
     except Exception as exc:
         # gymnasium's own errors (an unknown env id, ...) are user errors too; if gymnasium was
         # never imported, the exception cannot be one of them.

@@ -105,6 +105,9 @@ def _add_picture(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="a demo's routines from this library (`mine --out`), instead of mining")
     p.add_argument("--num-routines", "-k", type=int, default=3,
                    help="K, routines to mine from a demo (3)")
+    p.add_argument("--max-routines", type=int, default=12,
+                   help="draw at most this many of a demo's routines, the best by score (12): "
+                   "each is a film strip, and a picture of hundreds takes minutes")
     return p
 
 

@@ -8,6 +8,7 @@ training run says exactly how it was made.
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 from collections.abc import Sequence
@@ -23,6 +24,13 @@ Routine = tuple[int, ...]
 LIBRARY_FORMAT = "routine-gym/library"
 LIBRARY_VERSION = 1
 
+#: The occurrences of a routine a library keeps (the first ones, in demo order); its frequency
+#: is still the full count. A repetitive demo of 10^6 actions holds a routine ~10^5 times: kept
+#: whole, they made a 128 MB `routines.json`, copied into every run folder and checkpoint, and
+#: gigabytes of memory. The shipped demos' routines occur at most ~1,000 times, so their
+#: libraries keep every occurrence (`occurrences_complete`).
+MAX_KEPT_OCCURRENCES = 5_000
+
 
 @dataclass(frozen=True)
 class RoutineLibrary:
@@ -35,7 +43,8 @@ class RoutineLibrary:
         frequencies: overlapping occurrences of each routine in the demonstration.
         occurrences: for each routine, its occurrences as `(episode, start)` pairs, where
             `start` indexes the episode's action sequence (given as pairs or as an integer
-            array of shape (f, 2), the miners' fast path: a routine can occur 10^6 times).
+            array of shape (f, 2), the miners' fast path: a routine can occur 10^6 times);
+            only the first `MAX_KEPT_OCCURRENCES` are kept (`occurrences_complete`).
         params: the parameters of the proposer that made the library.
         source: where the actions came from (demo path, env id, seed, ...).
         action_meanings: names of the primitive actions, when known.
@@ -86,6 +95,14 @@ class RoutineLibrary:
 
     def __getitem__(self, k: int) -> Routine:
         return self.routines[k]
+
+    @property
+    def occurrences_complete(self) -> bool:
+        """Whether `occurrences` holds every occurrence of every routine: none was left out
+        for `MAX_KEPT_OCCURRENCES` (known from the frequencies; False without them)."""
+        return (bool(self.occurrences) and len(self.frequencies) == len(self.occurrences)
+                and all(len(o) == f for o, f in zip(self.occurrences, self.frequencies,
+                                                    strict=True)))
 
     @property
     def lengths(self) -> tuple[int, ...]:
@@ -196,11 +213,12 @@ def _action_id(action: Any, routine: int) -> int:
 
 
 def _occurrence_pairs(occ: Any) -> tuple[tuple[int, int], ...]:
-    """One routine's occurrences as a tuple of `(int, int)` pairs."""
+    """One routine's first `MAX_KEPT_OCCURRENCES` occurrences as a tuple of `(int, int)` pairs."""
     if isinstance(occ, np.ndarray) and occ.ndim == 2 and occ.shape[1] == 2 and (
             np.issubdtype(occ.dtype, np.integer)):
+        occ = occ[:MAX_KEPT_OCCURRENCES]
         return tuple(zip(occ[:, 0].tolist(), occ[:, 1].tolist(), strict=True))
-    return tuple((int(e), int(s)) for e, s in occ)
+    return tuple((int(e), int(s)) for e, s in itertools.islice(occ, MAX_KEPT_OCCURRENCES))
 
 
 def routine_name(routine: Sequence[int], action_meanings: Sequence[str] | None = None) -> str:

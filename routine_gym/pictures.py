@@ -50,7 +50,12 @@ __all__ = [
     "routine_picture",
     "routine_usage",
     "save_png",
+    "top_routines",
 ]
+
+#: The routines `routine-gym picture` draws at most (`--max-routines`): a film strip each, and
+#: the time to draw grows faster than their number (a 200-routine library took > 3 minutes).
+MAX_ROUTINES = 12
 
 #: Frames a film strip holds per row; a longer routine wraps onto further rows.
 FRAMES_PER_ROW = 8
@@ -127,6 +132,35 @@ class RoutinePicture:
     timeline: Timeline
     replayed_steps: int
     """Env steps replayed to render the frames (0 when the demo keeps RGB observations)."""
+
+
+def top_routines(library: RoutineLibrary, n: int) -> RoutineLibrary:
+    """The `n` best routines of `library` by score (all of them when it has `n` or fewer),
+    in the library's order, with their evidence; a library without scores keeps its first `n`.
+
+    Example:
+        >>> lib = RoutineLibrary(routines=((0, 1), (1, 2), (2, 0)), scores=(2.0, 5.0, 3.0))
+        >>> top_routines(lib, 2).routines
+        ((1, 2), (2, 0))
+    """
+    if n < 1:
+        raise ValueError(f"n needs to be ≥ 1, actual value: {n}")
+    if len(library) <= n:
+        return library
+    if library.scores:
+        # Best first; among equal scores the earlier routine (a stable sort).
+        best = sorted(range(len(library)), key=lambda k: -library.scores[k])[:n]
+        kept = sorted(best)
+    else:
+        kept = list(range(n))
+
+    def pick(values: tuple) -> tuple:
+        return tuple(values[k] for k in kept) if values else values
+
+    return RoutineLibrary(
+        routines=pick(library.routines), scores=pick(library.scores),
+        frequencies=pick(library.frequencies), occurrences=pick(library.occurrences),
+        params=library.params, source=library.source, action_meanings=library.action_meanings)
 
 
 def _routines_of(routines: RoutineLibrary | Sequence[Sequence[int]]) -> list[Routine]:

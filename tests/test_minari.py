@@ -271,3 +271,57 @@ def test_without_minari_the_cli_says_how_to_install_it(tmp_path):
     proc = user("python", "-c", code, cwd=tmp_path, minari_path=tmp_path / "datasets")
     assert_one_line_error(proc, "pip install routine-gym[minari]", prefix="routine-gym: error:")
     assert not (tmp_path / "datasets").exists() or not os.listdir(tmp_path / "datasets")
+
+
+# -- Minari's hdf5 format, and ids that nest (issue 46 case 10) -----------------------------
+
+
+def _as_hdf5(datasets: Path, dataset_id: str) -> None:
+    """Mark an exported dataset as stored in Minari's hdf5 format (its default; h5py, which
+    writes one, is not installed here): what such a dataset's metadata says."""
+    path = datasets / dataset_id / "data" / "metadata.json"
+    meta = json.loads(path.read_text())
+    meta["data_format"] = "hdf5"
+    path.write_text(json.dumps(meta))
+
+
+def test_an_hdf5_dataset_is_one_line_everywhere_before_any_run_folder(tmp_path):
+    pytest.importorskip("minari")
+    try:
+        import h5py  # noqa: F401
+        pytest.skip("h5py is installed: an hdf5 dataset can be read")
+    except ImportError:
+        pass
+    datasets = tmp_path / "datasets"
+    ok(user("routine-gym", "export", BREAKOUT, "--minari", "me/h5-v0", cwd=tmp_path,
+            minari_path=datasets))
+    _as_hdf5(datasets, "me/h5-v0")
+    for words in (["routine-gym", "mine", "minari:me/h5-v0"],
+                  ["routine-gym", "show", "minari:me/h5-v0"],
+                  ["routine-gym", "replay", "minari:me/h5-v0"],
+                  ["routine-gym", "picture", "minari:me/h5-v0", "--out", "p.png"],
+                  ["python", REPO / "algos" / "rapl_a2c.py", "--env-id", "MinAtar/Breakout-v1",
+                   "--demo", "minari:me/h5-v0", "--total-timesteps", "256"]):
+        proc = user(*words, cwd=tmp_path, minari_path=datasets)
+        assert_one_line_error(proc, "minari:me/h5-v0 is stored in Minari's hdf5 format",
+                              "pip install 'minari[hdf5]'", "data_format='arrow'")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["datasets"]  # no run folder
+
+
+def test_export_refuses_an_id_inside_or_over_an_existing_dataset(tmp_path):
+    datasets = tmp_path / "datasets"
+    ok(user("routine-gym", "export", BREAKOUT, "--minari", "rg/mq-v0", cwd=tmp_path,
+            minari_path=datasets))
+    before = sorted(str(p.relative_to(datasets)) for p in datasets.rglob("*"))
+    proc = user("routine-gym", "export", BREAKOUT, "--minari", "rg/mq-v0/sub-v0",
+                cwd=tmp_path, minari_path=datasets)
+    assert_one_line_error(proc, "rg/mq-v0/sub-v0 would put a dataset inside the dataset "
+                          "rg/mq-v0")
+    # A folder that holds datasets (as one nested by the old export did) is no free id either.
+    (datasets / "old-v0" / "sub-v0" / "data").mkdir(parents=True)
+    proc = user("routine-gym", "export", BREAKOUT, "--minari", "old-v0", cwd=tmp_path,
+                minari_path=datasets)
+    assert_one_line_error(proc, "old-v0 is a folder of other datasets")
+    after = sorted(str(p.relative_to(datasets)) for p in datasets.rglob("*")
+                   if not str(p.relative_to(datasets)).startswith("old-v0"))
+    assert after == before  # nothing written into the existing dataset

@@ -25,6 +25,7 @@ from routine_gym.pictures import (
     draw_routine_usage,
     routine_picture,
     routine_usage,
+    top_routines,
 )
 from routine_gym.video import step_captions
 
@@ -309,3 +310,40 @@ def test_rapl_a2c_capture_video_films_training_and_evaluation_without_moviepy(tm
         assert gif.n_frames > 1
     # Training env 0's first episode, on CleanRL's schedule, where CleanRL puts it.
     assert (tmp_path / "videos" / run.name / "train-episode-0.gif").is_file()
+
+
+# -- a bounded number of routines (issue 46 case 8) --------------------------------------------
+
+
+def test_top_routines_keeps_the_best_by_score_in_the_librarys_order():
+    library = RoutineLibrary(routines=((0, 1), (1, 2), (2, 0), (0, 2)),
+                             scores=(2.0, 5.0, 3.0, 5.0), frequencies=(1, 4, 2, 4))
+    top = top_routines(library, 3)
+    # 5.0, 5.0 and 3.0 are the best three; kept in the library's order, evidence with them.
+    assert top.routines == ((1, 2), (2, 0), (0, 2)) and top.frequencies == (4, 2, 4)
+    assert top_routines(library, 9) is library
+    assert top_routines(RoutineLibrary(routines=((0, 1), (1, 2))), 1).routines == ((0, 1),)
+
+
+def test_a_picture_of_a_large_library_draws_a_bounded_number_and_says_so(tmp_path):
+    import time
+
+    demo = REPO / "demos" / "MinAtar-SpaceInvaders-v1.npz"
+    library = SequiturMiner(num_routines=100, alpha=1).mine(Demo.load(demo))
+    assert len(library) > 100 // 2  # about a hundred routines (119 from 200 asked)
+    library.save(tmp_path / "big.json")
+    env = {"PATH": f"{BIN}:/usr/bin:/bin", "HOME": str(tmp_path)}
+    start = time.monotonic()
+    proc = subprocess.run([str(BIN / "routine-gym"), "picture", str(demo), "--routines",
+                           "big.json", "--out", "big.png"], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines()[-1] == (f"drew 12 of {len(library)} routines (the best by "
+                                            "score); --max-routines to change")
+    assert proc.stdout.count("  routine ") == 12
+    assert (tmp_path / "big.png").is_file()
+    assert time.monotonic() - start < 120  # > 180 s before, with every routine drawn
+    proc = subprocess.run([str(BIN / "routine-gym"), "picture", str(demo), "--routines",
+                           "big.json", "--out", "big.png", "--max-routines", "0"],
+                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert_one_line_error(proc, "--max-routines needs to be in [1, 1000], actual value: 0")

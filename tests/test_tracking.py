@@ -105,7 +105,7 @@ def test_a_tracked_run_logs_the_same_scalars_at_the_same_steps_to_wandb_as_to_te
 
 
 def test_resume_continues_the_same_wandb_run_and_both_sinks_still_match(tmp_path):
-    flags = ["--env-id", "MinAtar/Breakout-v1", "--demo", str(DEMO), "--mode", "a2c",
+    flags = ["--env-id", "MinAtar/Breakout-v1", "--mode", "a2c",  # no --demo: a2c reads none
              "--num-envs", "2", "--eval-episodes", "0", "--run-dir", "runs",
              "--torch-threads", "1", "--checkpoint-every", "200"]
     ok(script("rapl_a2c", *flags, "--total-timesteps", "200", "--track", cwd=tmp_path))

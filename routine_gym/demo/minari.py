@@ -71,6 +71,7 @@ from routine_gym.errors import UsageError
 
 __all__ = [
     "MINARI_SCHEME",
+    "check_minari_dataset",
     "export_minari",
     "load_minari_demo",
     "minari_dataset_id",
@@ -158,6 +159,7 @@ def export_minari(demo: Demo, dataset_id: str, *, source: str | None = None) -> 
 
     _check_dataset_id(dataset_id)
     target = get_dataset_path(dataset_id)
+    _check_no_nesting(dataset_id, target, get_dataset_path())
     if target.exists():
         raise UsageError(f"Minari dataset {dataset_id} already exists at {target}; choose "
                          "another id (or version), or delete it (`minari delete "
@@ -188,6 +190,20 @@ def export_minari(demo: Demo, dataset_id: str, *, source: str | None = None) -> 
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return target
+
+
+def _check_no_nesting(dataset_id: str, target: Path, root: Path) -> None:
+    """Refuse an id whose folder lies inside an existing dataset (`rg/mq-v0/sub-v0` when
+    `rg/mq-v0` exists), or is a namespace holding datasets (`rg` when `rg/mq-v0` exists)."""
+    parts = target.relative_to(root).parts
+    for k in range(1, len(parts)):
+        above = root.joinpath(*parts[:k])
+        if (above / "data").is_dir():
+            raise UsageError(f"Minari dataset id {dataset_id} would put a dataset inside the "
+                             f"dataset {'/'.join(parts[:k])} ({above}); choose an id outside it")
+    if target.is_dir() and not (target / "data").is_dir():
+        raise UsageError(f"Minari dataset id {dataset_id} is a folder of other datasets "
+                         f"({target}), not a free id; choose another id")
 
 
 def _raw_env(demo: Demo):
@@ -374,20 +390,11 @@ def load_minari_demo(dataset_id: str, env_id: str | None = None) -> Demo:
         FileNotFoundError: no such dataset in the local Minari folder.
     """
     minari = _minari(f"{MINARI_SCHEME}{dataset_id}")
-    from minari.dataset.minari_storage import MinariStorage
     from minari.serialization import deserialize_space
-    from minari.storage.datasets_root_dir import get_dataset_path
 
     name = f"{MINARI_SCHEME}{dataset_id}"
-    _check_dataset_id(dataset_id)
-    data_path = get_dataset_path(dataset_id) / "data"
-    if not data_path.is_dir():
-        raise FileNotFoundError(
-            f"{name}: no Minari dataset {dataset_id} in {get_dataset_path()} (set "
-            "MINARI_DATASETS_PATH to the folder that holds it; routine-gym never downloads "
-            "one)")
+    raw = check_minari_dataset(dataset_id)
     try:
-        raw = MinariStorage.read_raw_metadata(data_path)
         # Without its spaces Minari would make the dataset's env to find them, running code
         # named by the file; a demo needs them anyway.
         if "observation_space" not in raw or "action_space" not in raw:
@@ -406,6 +413,9 @@ def load_minari_demo(dataset_id: str, env_id: str | None = None) -> Demo:
         demo = _demo(raw, dataset, episodes, seeds, dataset_id)
     except ValueError as exc:  # ours, the Demo's checks, Minari's and Arrow's (ArrowInvalid)
         raise UsageError(f"{name}: {exc}") from exc
+    except ImportError as exc:  # a backend's package (checked above for hdf5)
+        raise UsageError(f"{name}: reading it needs {exc.name or 'a package'}, which is not "
+                         f"installed ({exc})") from None
     except (TypeError, KeyError, OSError) as exc:
         raise UsageError(f"{name}: not a dataset routine-gym can read "
                          f"({type(exc).__name__}: {exc})") from exc
@@ -414,6 +424,52 @@ def load_minari_demo(dataset_id: str, env_id: str | None = None) -> Demo:
     except ValueError as exc:
         raise UsageError(f"{name}: {exc}") from None
     return demo
+
+
+def check_minari_dataset(dataset_id: str) -> dict[str, Any]:
+    """Refuse, before any work (a script checks `--demo minari:ID` before it makes its run
+    folder), a dataset that cannot be read here: minari not installed, a malformed id, no such
+    local dataset, or one stored in Minari's `hdf5` format (its default) without `h5py`.
+    Returns the dataset's raw metadata.
+
+    Raises:
+        UsageError: one line naming the dataset and what to do.
+        FileNotFoundError: no such dataset in the local Minari folder.
+    """
+    _minari(f"{MINARI_SCHEME}{dataset_id}")
+    from minari.dataset.minari_storage import MinariStorage
+    from minari.storage.datasets_root_dir import get_dataset_path
+
+    name = f"{MINARI_SCHEME}{dataset_id}"
+    _check_dataset_id(dataset_id)
+    data_path = get_dataset_path(dataset_id) / "data"
+    if not data_path.is_dir():
+        raise FileNotFoundError(
+            f"{name}: no Minari dataset {dataset_id} in {get_dataset_path()} (set "
+            "MINARI_DATASETS_PATH to the folder that holds it; routine-gym never downloads "
+            "one)")
+    try:
+        raw = MinariStorage.read_raw_metadata(data_path)
+    except ValueError as exc:
+        raise UsageError(f"{name}: {exc}") from exc
+    except (TypeError, KeyError, OSError) as exc:
+        raise UsageError(f"{name}: not a dataset routine-gym can read "
+                         f"({type(exc).__name__}: {exc})") from exc
+    if not isinstance(raw, dict):
+        raise UsageError(f"{name}: its metadata is not a JSON object")
+    data_format = raw.get("data_format")
+    if data_format == "hdf5":
+        try:
+            import h5py  # noqa: F401  (Minari's hdf5 backend)
+        except ImportError:
+            raise UsageError(
+                f"{name} is stored in Minari's hdf5 format, which needs h5py (not installed): "
+                "pip install 'minari[hdf5]' into routine-gym's venv, or re-create the dataset "
+                "with data_format='arrow' (what `routine-gym export` writes)") from None
+    elif data_format not in (None, "arrow"):
+        raise UsageError(f"{name} is stored in the format {data_format!r}; routine-gym reads "
+                         "Minari's arrow and hdf5 formats")
+    return raw
 
 
 def _check_actions(space: Any) -> None:

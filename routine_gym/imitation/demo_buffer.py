@@ -183,11 +183,12 @@ def routine_transitions(
 
 
 def _mined_from(library: RoutineLibrary, demo: Demo) -> bool:
-    """Whether `library` records `demo` as its source (and so its occurrences are the demo's)."""
+    """Whether `library` records `demo` as its source (and so its occurrences are the demo's)
+    and keeps every one of them (a library of a repetitive demo keeps only the first ones)."""
     source = library.source
     scores = list(source.get("scores", ()))
     return (
-        bool(library.occurrences)
+        library.occurrences_complete
         and source.get("env_id") == demo.env_id
         and list(source.get("seeds", ())) == list(demo.seeds)
         and len(scores) == demo.num_episodes

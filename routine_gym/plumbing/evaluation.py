@@ -12,7 +12,9 @@ writes the summary as the run's `eval.json` and TensorBoard's `eval/*` scalars.
 `eval.json` (every script): `env_id`, `episodes`, `seed`, `returns`, `lengths` (primitive
 steps, injected ones included), `decisions` (decided primitive steps), `mean_return`,
 `std_return`, `env_kwargs`; with a demo `alignments`, `mean_alignment`, `std_alignment`,
-`demo_score`, `demo_length` (its best episode's decisions); `human_normalized_score` where the
+`demo_score`, `demo_length` (its best episode's decisions), and `aligned_length` when a demo
+longer than `ALIGNMENT_MAX_LENGTH` decisions is aligned over its first ones only (the time of
+an alignment grows as the square of the length); `human_normalized_score` where the
 env's profile has a published table (Atari); and what the script adds (`method`,
 `global_step`, ...).
 """
@@ -34,7 +36,7 @@ from routine_gym.demo.collect import _policy_caller
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import default_env_kwargs, preprocess
 from routine_gym.library import RoutineLibrary
-from routine_gym.metrics import alignment_score, human_normalized_score
+from routine_gym.metrics import ALIGNMENT_MAX_LENGTH, alignment_score, human_normalized_score
 
 __all__ = ["evaluate_policy", "save_evaluation"]
 
@@ -133,7 +135,8 @@ def evaluate_policy(
         # ι_d and ι_t: the demonstrator's and the agent's decided primitive actions (a routine
         # as its executed primitives), without the steps the preprocessing injected into either.
         reference = demo.decision_actions()[demo.best_episode]
-        alignments = [alignment_score(reference, actions) for actions in trajectories]
+        alignments = [alignment_score(reference, actions, ALIGNMENT_MAX_LENGTH)
+                      for actions in trajectories]
         summary.update(
             alignments=alignments,
             mean_alignment=float(np.mean(alignments)),
@@ -141,6 +144,8 @@ def evaluate_policy(
             demo_score=float(demo.scores[demo.best_episode]),
             demo_length=len(reference),
         )
+        if len(reference) > ALIGNMENT_MAX_LENGTH:
+            summary["aligned_length"] = ALIGNMENT_MAX_LENGTH
     score_key = profile_for(env_id).score_key(env_id)
     if score_key is not None:
         try:

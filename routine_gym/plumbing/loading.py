@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import warnings
 from typing import Any
@@ -25,7 +26,11 @@ from routine_gym.errors import UsageError
 from routine_gym.library import RoutineLibrary
 from routine_gym.mining import MAX_ROUTINE_LENGTH, make_proposer
 
-__all__ = ["check_demo_env", "load_demo", "load_routines"]
+__all__ = ["check_demo_env", "load_demo", "load_routines", "unused_routine_flags"]
+
+#: The `Args` fields that only mining a demo reads (a saved library's routines are taken whole).
+MINING_FLAGS = ("proposer", "length_weight", "alpha", "min_routine_length",
+                "max_routine_length", "selection")
 
 
 def load_demo(env_id: str, path: str | None = None, purpose: str = "imitation") -> tuple[Demo, str]:
@@ -245,3 +250,46 @@ def load_routines(
                       stacklevel=2)
         return None
     return library
+
+
+def unused_routine_flags(args: Any, no_routines: str | None, demo_only_mined: bool = True
+                         ) -> list[tuple[str, bool, str]]:
+    """The rules (as a script's `extra_checks` gives them) that refuse a routine flag the run
+    would ignore: set away from its default where nothing reads it.
+
+    - A run without routines (`no_routines` says why: `"--mode a2c"`) reads none of
+      `--routine-library`, `--num-routines` and the mining flags (`MINING_FLAGS`), nor `--demo`
+      when the script reads the demo only to mine it (`demo_only_mined`).
+    - A run given `--routine-library` mines nothing: the mining flags, and `--demo` when it is
+      only mined, go unread.
+
+    Example:
+        >>> from dataclasses import dataclass
+        >>> @dataclass
+        ... class Args:
+        ...     demo: str | None = None
+        ...     routine_library: str | None = None
+        ...     num_routines: int = 3
+        ...     alpha: int = 2
+        >>> unused_routine_flags(Args(alpha=1), "--mode a2c")[-1]
+        ('alpha', False, '2 with --mode a2c, which uses no routines')
+    """
+    defaults = {f.name: f.default for f in dataclasses.fields(args)}
+    if no_routines is not None:
+        cause = f"{no_routines}, which uses no routines"
+        unread = ["routine_library", *MINING_FLAGS]
+        if not no_routines.startswith("--num-routines"):
+            unread.append("num_routines")
+        if demo_only_mined:
+            unread.append("demo")
+    elif getattr(args, "routine_library", None) is not None:
+        cause = "--routine-library, whose routines are not mined from a demo"
+        unread = [*MINING_FLAGS, *(["demo"] if demo_only_mined else [])]
+    else:
+        return []
+    rules = []
+    for name in sorted(set(unread) & defaults.keys(), key=list(defaults).index):
+        default = defaults[name]
+        wanted = "left out" if default is None else f"{default}"
+        rules.append((name, getattr(args, name) == default, f"{wanted} with {cause}"))
+    return rules

@@ -49,6 +49,7 @@ from routine_gym.plumbing.divergence import (
     as_divergence,
     check_parameters,
 )
+from routine_gym.plumbing.folder_lock import LOCK_FILE, hold_folder
 from routine_gym.plumbing.memory import keep_freed_memory
 from routine_gym.plumbing.rng import rng_state, set_rng_state
 from routine_gym.plumbing.seeds import demo_seed, eval_seed, stride_checks
@@ -72,7 +73,13 @@ def run_script(main: Callable[[Any], Any], args_type: type,
     (`routine_gym.errors`) as one line on stderr with exit code 2; `--debug` (or
     `ROUTINE_GYM_DEBUG=1`) shows their traceback instead. A bug keeps its traceback."""
     from routine_gym.envs import quiet_ale
-    from routine_gym.errors import debug_requested, expected_errors, one_line
+    from routine_gym.errors import (
+        DISK_FULL_EXIT,
+        debug_requested,
+        disk_full,
+        expected_errors,
+        one_line,
+    )
 
     quiet_ale()
     argv = sys.argv[1:]
@@ -103,6 +110,17 @@ def run_script(main: Callable[[Any], Any], args_type: type,
             raise
         print(f"{script}: error: {one_line(exc)}", file=sys.stderr)
         raise SystemExit(2) from None
+    except OSError as exc:
+        line = disk_full(exc)
+        if line is None or debug:
+            raise
+        for run in _NEW_RUNS:  # a new run that wrote nothing but its first events
+            with contextlib.suppress(OSError):
+                _remove_failed_run(run)
+        with contextlib.suppress(OSError):
+            _end_tracking(exit_code=DISK_FULL_EXIT)
+        print(f"{script}: error: {line}", file=sys.stderr)
+        raise SystemExit(DISK_FULL_EXIT) from None
 
 
 # -- the run ----------------------------------------------------------------------------------
@@ -154,6 +172,9 @@ class Run:
     """The W&B run id the checkpoints keep: this run's, or the resumed checkpoint's."""
     step: int | None = None
     """The step counter at the end of the last iteration (`checkpoint_if_due`), for reports."""
+    release: Callable[[], None] | None = None
+    """Releases the run folder's lock (`routine_gym.plumbing.folder_lock`), held from the
+    start; `finish` calls it (a process that dies drops it anyway)."""
 
     @property
     def checkpoint_path(self) -> str:
@@ -252,6 +273,32 @@ class Run:
         if self._filmed is not None and getattr(self.args, "capture_video", False):
             return self.first_video_episode + int(self._filmed.get_attr("episode_count")[0])
         return self.first_video_episode
+    def routine_demo(self, purpose: str) -> Any:
+        """The demo the run's routines are mined from and its evaluation aligns with (None
+        with `--routine-library`): `--demo`, else the env's shipped one, loaded on a new run
+        and on `--resume` alike, so that a resumed run's `eval.json` keeps its alignment and
+        demo score. On `--resume` a demo gone since is a warning, not an error: the run goes
+        on (its routines are the checkpoint's) and is evaluated without alignment.
+
+        Args:
+            purpose: what needs the demo, for a missing one's message (`"--mode rapl"`).
+        """
+        from routine_gym.plumbing.loading import load_demo
+
+        args = self.args
+        if args.routine_library is not None:
+            return None
+        try:
+            demo, args.demo = load_demo(args.env_id, args.demo, purpose=purpose)
+        except (UsageError, FileNotFoundError) as exc:
+            if self.checkpoint is None:
+                raise
+            from routine_gym.errors import one_line
+
+            print(f"warning: {one_line(exc)}; the evaluation has no alignment",
+                  file=sys.stderr, flush=True)
+            return None
+        return demo
 
     def resume(self, state: dict[str, Any], *, extra: dict[str, Any] | None = None,
                count: str | None = None, filmed: Any = None, **counters: int) -> Any:
@@ -371,6 +418,9 @@ class Run:
         self.writer.close()
         if self.tracking is not None:
             self.tracking.finish()
+        if self.release is not None:
+            self.release()
+            self.release = None
         return result
 
     def _record_demo(self, policy: Callable[..., int], routines: Any, step: int) -> None:
@@ -477,7 +527,7 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
         profile_reward_scale(args)
     check_args(args, extra_checks)
     if getattr(args, "record_demo", None):
-        check_writable(args.record_demo, "--record-demo")  # before training, not after
+        check_writable(args.record_demo, "--record-demo", ".npz")  # before training, not after
     saved_budget = None
     if args.resume:
         args, checkpoint, path = resume_settings(args, checkpoint_keys, script,
@@ -494,14 +544,20 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
         check_env(args.env_id)
         _check_tracking(args)
         os.makedirs(path, exist_ok=True)
+        # Before anything is written: a second process on the run (another --resume, or the
+        # run itself still training) is refused, naming it.
+        release = hold_folder(path, what="run", named=f"--resume {args.resume}")
     else:
         checkpoint = None
         check_env(args.env_id)
         _check_tracking(args)
+        _check_demo_source(args)
         mode = getattr(args, "mode", None)
         experiment = args.exp_name if mode is None else f"{args.exp_name}-{mode}"
         name, path = _new_run_folder(
             args.run_dir, f"{args.env_id.replace('/', '-')}__{experiment}__{args.seed}")
+        # Held from its making, so that a --resume of it while it trains is refused.
+        release = hold_folder(path, what="run", named=f"--run-dir {args.run_dir}")
     from routine_gym.plumbing.scalars import ScalarWriter
 
     wandb_run_id = None if checkpoint is None else checkpoint.get("wandb_run_id")
@@ -512,8 +568,10 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
         try:
             tracking = start_tracking(args, name, wandb_run_id)
         except UsageError:
+            release()
             if checkpoint is None:
                 with contextlib.suppress(OSError):
+                    os.remove(os.path.join(path, LOCK_FILE))
                     os.rmdir(path)  # the new run's folder, still empty
             raise
         wandb_run_id = tracking.run_id
@@ -530,7 +588,7 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
     device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
     run = Run(args=args, name=name, path=path, writer=writer, device=device, rng=rng,
               checkpoint=checkpoint, budget=budget, saved_budget=saved_budget,
-              tracking=tracking, wandb_run_id=wandb_run_id)
+              tracking=tracking, wandb_run_id=wandb_run_id, release=release)
     if checkpoint is None:
         _NEW_RUNS.append(run)
     _RUNS.append(run)
@@ -568,12 +626,23 @@ def _new_run_folder(run_dir: str, stem: str) -> tuple[str, str]:
     raise UsageError(f"--run-dir {run_dir}: no free run folder name for {stem}")
 
 
-def _check_tracking(args: Any) -> None:
-    """`--track` without wandb installed: a one-line error before the run's folder is made."""
-    if getattr(args, "track", False):
-        from routine_gym.plumbing.tracking import import_wandb
+def _check_demo_source(args: Any) -> None:
+    """`--demo minari:ID` that cannot be read here (no such dataset, Minari's hdf5 format
+    without h5py, ...): a one-line error before the run's folder is made."""
+    from routine_gym.demo.minari import check_minari_dataset, minari_dataset_id
 
-        import_wandb()
+    dataset_id = minari_dataset_id(getattr(args, "demo", None))
+    if dataset_id is not None:
+        check_minari_dataset(dataset_id)
+
+
+def _check_tracking(args: Any) -> None:
+    """`--track` without wandb installed, with a project W&B refuses or without W&B
+    credentials (`check_tracking`): a one-line error before the run's folder is made."""
+    if getattr(args, "track", False):
+        from routine_gym.plumbing.tracking import check_tracking
+
+        check_tracking(args.wandb_project_name, args.wandb_entity)
 
 
 def _end_tracking(exit_code: int) -> None:
@@ -585,11 +654,15 @@ def _end_tracking(exit_code: int) -> None:
 def _remove_failed_run(run: Run) -> None:
     """Remove a new run's folder when it holds nothing but TensorBoard's first event file."""
     run.writer.close()
+    if run.release is not None:
+        run.release()
+        run.release = None
     path = run.path
     if not os.path.isdir(path):
         return
     entries = os.listdir(path)
-    if all(e.startswith("events.out.tfevents.") or e == "routines.json" for e in entries):
+    if all(e.startswith("events.out.tfevents.") or e in ("routines.json", LOCK_FILE)
+           for e in entries):
         import shutil
 
         shutil.rmtree(path, ignore_errors=True)

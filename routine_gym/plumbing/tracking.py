@@ -23,13 +23,18 @@ is W&B's choice (`./wandb`, or `WANDB_DIR`); `WANDB_MODE=offline` logs without a
 
 from __future__ import annotations
 
+import os
 from dataclasses import asdict
 from types import ModuleType
 from typing import Any
 
 from routine_gym.errors import UsageError
 
-__all__ = ["INSTALL_HINT", "STEP_METRIC", "WandbScalars", "import_wandb", "start_tracking"]
+__all__ = ["INSTALL_HINT", "STEP_METRIC", "WandbScalars", "check_tracking", "import_wandb",
+           "start_tracking"]
+
+#: `WANDB_MODE`s that log without an account.
+_LOCAL_MODES = ("offline", "disabled", "dryrun")
 
 #: How to get W&B, named by the error when it is missing.
 INSTALL_HINT = "pip install 'routine-gym[wandb]'"
@@ -45,6 +50,34 @@ def import_wandb() -> ModuleType:
         raise UsageError(f"--track needs Weights & Biases (wandb), which is not installed: "
                          f"{INSTALL_HINT}") from None
     return wandb
+
+
+def check_tracking(project: str | None, entity: str | None) -> None:
+    """Refuse, before any run starts, W&B settings that would fail every run's `wandb.init`:
+    wandb missing, a project or entity name W&B refuses (`a/b`: no `/\\#?%:`), or no W&B
+    credentials outside offline mode. A sweep otherwise started every run, each failed, and
+    the sweep advised the same command again.
+
+    Raises:
+        UsageError: one line naming the flag, or saying how to log in.
+    """
+    wandb = import_wandb()
+    for flag, key, value in (("--wandb-project-name", "project", project),
+                             ("--wandb-entity", "entity", entity)):
+        if value is None:
+            continue
+        try:
+            wandb.Settings(**{key: value})
+        except Exception as exc:  # wandb's UsageError, or pydantic's ValidationError
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise UsageError(f"{flag} {value}: W&B refuses it ({first})") from None
+    if os.environ.get("WANDB_MODE", "").lower() in _LOCAL_MODES or os.environ.get(
+            "WANDB_DISABLED", "").lower() in ("1", "true"):
+        return
+    if not wandb.login(prompt=False, verify=False):
+        raise UsageError("--track: not logged in to Weights & Biases (no API key): run "
+                         "`wandb login` (or set WANDB_API_KEY), or set WANDB_MODE=offline to "
+                         "log locally")
 
 
 class WandbScalars:
