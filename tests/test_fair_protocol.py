@@ -252,14 +252,19 @@ def test_a_fair_sweep_tunes_then_runs_the_diagnosis_and_reports_it(tmp_path):
         assert proc.returncode == 0, (proc.stdout[-2000:], proc.stderr[-2000:])
         assert "0 failed" in proc.stdout + proc.stderr
     assert "6 finished before" in proc.stdout + proc.stderr  # the tune runs, trained once
+    tuned = 0
     for config in (out / "runs").glob("*/config.json"):
         config = json.loads(config.read_text())
         if config.get("derived"):
             (folder,) = [p for p in (out / "runs" / config["key"]).iterdir() if p.is_dir()]
             ea = EventAccumulator(str(folder))
             ea.Reload()
-            lrs = [s.value for s in ea.Scalars("charts/learning_rate")]
-            assert lrs[0] == pytest.approx(7e-4)  # the smoke grid's learning rate
+            (text,) = ea.Tensors("hyperparameters/text_summary")
+            table = text.tensor_proto.string_val[0].decode()
+            assert "|learning_rate|0.0007|" in table  # the smoke grid's learning rate
+            assert "|anneal_lr|True|" in table or "|anneal_lr|False|" in table
+            tuned += 1
+    assert tuned == 2 * 6  # every main run of the 6 arms on 2 seeds learned as tuned
     proc = user("routine-gym", "experiment", "report", out, cwd=tmp_path, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     report = (out / "report" / "report.md").read_text()

@@ -110,10 +110,17 @@ def test_installed_show_demos_lists_the_eight_shipped_demos(installed):
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.splitlines()
     demos_dir = installed["site"] / "routine_gym" / "demos"
-    assert lines[0] == f"{len(SHIPPED_ENV_IDS)} demo(s) in {demos_dir}"
+    assert lines[0] == (f"{len(SHIPPED_ENV_IDS)} demo(s) in {demos_dir} (demo set `current`: "
+                        "what every script reads by default)")
+    # The older set `first` follows the current one, from the install's package data too.
+    older = next(i for i, line in enumerate(lines) if "of the older demo set `first`" in line)
+    assert lines[older].startswith(f"5 demo(s) of the older demo set `first` in {demos_dir}")
     # Each demo's first line starts with its env id; its details are indented below it.
-    listed = [line.split()[0] for line in lines[1:] if line and not line.startswith(" ")]
+    listed = [line.split()[0] for line in lines[1:older] if line and not line.startswith(" ")]
     assert sorted(listed) == sorted(SHIPPED_ENV_IDS)
+    older_listed = [line.split()[0] for line in lines[older + 1:]
+                    if line and not line.startswith(" ")]
+    assert sorted(older_listed) == sorted(e for e in SHIPPED_ENV_IDS if e.startswith("MinAtar/"))
     assert "no demo in" not in proc.stdout
 
 

@@ -376,5 +376,8 @@ def test_both_update_forwards_give_the_same_first_update(rapl_a2c, tmp_path, mod
                                                           "losses/policy_loss",
                                                           "losses/entropy",
                                                           "losses/prim_value_loss")}
-    assert first["acting"] == pytest.approx(first["rollout"], rel=1e-6, abs=1e-7)
+    # Up to float32 rounding: one batched pass and 5 small ones may pick different BLAS
+    # kernels (a2c's policy loss differed by 1.4e-7 in 0.0296, 4.7e-6 relative, on this
+    # machine at 07ce218 already).
+    assert first["acting"] == pytest.approx(first["rollout"], rel=2e-5, abs=1e-7)
     assert first["acting"]["losses/value_loss"] > 0
