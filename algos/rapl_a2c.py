@@ -34,7 +34,6 @@ shorten_spin()  # before torch loads OpenMP: a shorter spin of its idle threads 
 
 import json
 import os
-import time
 import warnings
 from dataclasses import dataclass
 from typing import Literal
@@ -55,12 +54,11 @@ from routine_gym.networks import (
     sample_categorical,
 )
 from routine_gym.plumbing.arguments import given_flags
-from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent, scalars_due
+from routine_gym.plumbing.counters import budget_spent
 from routine_gym.plumbing.divergence import check_update
 from routine_gym.plumbing.loading import unused_routine_flags
 from routine_gym.plumbing.memory import check_rollout_memory
 from routine_gym.plumbing.run import (
-    Every,
     eval_env_kwargs,
     level_env_kwargs,
     run_script,
@@ -68,6 +66,7 @@ from routine_gym.plumbing.run import (
     train_env_kwargs,
 )
 from routine_gym.plumbing.seeds import train_seed
+from routine_gym.plumbing.training_log import TrainingLog
 from routine_gym.returns import (
     critic_loss,
     decision_returns,
@@ -238,11 +237,23 @@ class Args:
 
 
 class Agent(nn.Module):
-    def __init__(self, env_id: str, obs_space: gym.spaces.Box, num_actions: int) -> None:
+    """The policy and the value over one torso (`routine_gym.networks.ObservationEncoder`).
+
+    `keep_graph` is `--update-forward`'s choice, hidden behind `decide` and `update_forward`:
+    acting keeps each pass's graph for the update (no second pass: fastest for the large Atari
+    and Procgen CNNs), or builds none, and the update runs the network once more over the
+    whole rollout in one batch (fewer, larger calls: fastest for MinAtar's and the MLP's small
+    networks). The same numbers up to float rounding (tests/test_rapl_a2c_update.py).
+    """
+
+    def __init__(self, env_id: str, obs_space: gym.spaces.Box, num_actions: int,
+                 keep_graph: bool = False) -> None:
         super().__init__()
         self.encoder = ObservationEncoder(env_id, obs_space.shape, obs_space.dtype)
         self.actor = layer_init(nn.Linear(self.encoder.num_features, num_actions), std=0.01)
         self.critic = layer_init(nn.Linear(self.encoder.num_features, 1), std=1.0)
+        self.keep_graph = keep_graph
+        self._acting: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []
 
     def get_value(self, obs: torch.Tensor) -> torch.Tensor:
         return self.critic(self.encoder(obs)).squeeze(-1)
@@ -265,6 +276,38 @@ class Agent(nn.Module):
         _, logprob, entropy = categorical_policy(self.actor(hidden[: len(action)]),
                                                            action)
         return logprob, entropy, self.critic(hidden).squeeze(-1)
+
+    def decide(self, obs: torch.Tensor) -> torch.Tensor:
+        """The actions of one acting step; with `keep_graph`, the pass's log-probabilities,
+        entropies and values are kept, with their graph, for `update_forward`."""
+        if self.keep_graph:
+            action, logprob, entropy, value = self.get_action_and_value(obs)
+            self._acting.append((logprob, entropy, value))
+            return action
+        with torch.inference_mode():
+            return self.act(obs)
+
+    def update_forward(self, rollout_obs: np.ndarray, next_obs: np.ndarray,
+                       actions: np.ndarray):
+        """The update's forward pass over a rollout of d decisions per env: the log-probability
+        and entropy of each decision's action and its state's value (with their graph, [d·e]),
+        and the values of the e states `next_obs` after it (detached, numpy), which bootstrap
+        the returns. `rollout_obs` [d + 1, e, ...] holds the decision states, then `next_obs`.
+
+        With `keep_graph`, from the acting passes' kept outputs; otherwise one pass over the
+        d·e + e states, each output the acting pass's bit for bit."""
+        device = self.actor.weight.device
+        if self.keep_graph:
+            logprobs, entropies, values = (torch.cat(x) for x in zip(*self._acting, strict=True))
+            self._acting = []
+            with torch.no_grad():
+                bootstrap = self.get_value(torch.as_tensor(next_obs, device=device))
+            return logprobs, entropies, values, bootstrap.cpu().numpy()
+        logprobs, entropies, all_values = self.evaluate(
+            torch.as_tensor(rollout_obs.reshape(-1, *rollout_obs.shape[2:]), device=device),
+            torch.as_tensor(actions.reshape(-1), device=device))
+        num = actions.size
+        return logprobs, entropies, all_values[:num], all_values[num:].detach().cpu().numpy()
 
 
 #: What a checkpoint of this script holds (`--resume` checks for each).
@@ -327,6 +370,165 @@ def action_meanings(args: Args) -> list[str] | None:
     return meanings
 
 
+def load_routines(run, args: Args):
+    """The demo and the routine library of a run with routines (None, None with --mode a2c):
+    mined from the demo (or loaded), printed with action names, saved with the run; loaded on
+    --resume too (the library is the checkpoint's), so that the evaluation aligns with it."""
+    if args.mode == "a2c":
+        return None, None
+    demo = run.routine_demo(f"--mode {args.mode}")
+    library = run.routines(demo, meanings=lambda: action_meanings(args),
+                           env_kwargs=train_env_kwargs(args), required=f"--mode {args.mode}")
+    return demo, library
+
+
+def make_envs(run, args: Args, library):
+    """The training envs: same-step autoreset, so the step that ends an episode returns the
+    reset obs (MinAtar: all games stepped in one call, `routine_gym.envs.minatar_vector`)."""
+    envs = make_vector_env(args.env_id, args.num_envs, args.seed, routines=library,
+                           training=True, record_observations=args.mode == "rapl",
+                           env_kwargs=train_env_kwargs(args), capture_video=args.capture_video,
+                           run_name=run.name, first_video_episode=run.first_video_episode,
+                           async_envs=args.async_envs)
+    assert isinstance(envs.single_action_space, gym.spaces.Discrete), "only discrete actions"
+    return envs
+
+
+def make_agent(args: Args, envs, device: torch.device):
+    """The agent, with `--update-forward`'s choice, and its RMSprop optimizer."""
+    # --update-forward auto: the acting passes' graphs for the large CNNs (a second pass over
+    # the rollout would cost about a fifth of their time), one batched pass for the others.
+    keep_graph = args.update_forward == "acting" or (
+        args.update_forward == "auto"
+        and profile_for(args.env_id).network in ("nature_cnn", "impala_cnn"))
+    agent = Agent(args.env_id, envs.single_observation_space, int(envs.single_action_space.n),
+                  keep_graph=keep_graph).to(device)
+    # foreach: one kernel per step for all tensors instead of a loop (same arithmetic)
+    optimizer = torch.optim.RMSprop(agent.parameters(), lr=args.learning_rate,
+                                    alpha=args.rmsprop_alpha, eps=args.rmsprop_eps, foreach=True)
+    return agent, optimizer
+
+
+@dataclass
+class Rollout:
+    """A rollout's storage, time-major: [decision, env] and [decision, step in routine, env]."""
+
+    obs: np.ndarray  # [N + 1, E, ...]: the decision states and the states after the rollout
+    actions: np.ndarray
+    step_rewards: np.ndarray  # [N, L, E]: the primitive rewards of each decision's routine
+    lengths: np.ndarray
+    terminated: np.ndarray
+    truncated: np.ndarray
+    final_values: np.ndarray  # V(last obs) of an episode cut at that decision
+    inner_obs: np.ndarray  # [N, L − 1, E, ...]: the states inside routines (RAPL)
+    a2c_discounts: np.ndarray
+
+
+def allocate_rollout(space: gym.spaces.Box, n: int, e: int, max_len: int, gamma: float):
+    """The storage of rollouts of `n` decisions of `e` envs with routines up to `max_len` long,
+    refused first when it cannot fit (--num-steps, --num-envs, the routines)."""
+    check_rollout_memory(space, n, e, observations=1 + max(max_len - 1, 1), numbers=5 + max_len)
+    return Rollout(obs=np.zeros((n + 1, e, *space.shape), dtype=space.dtype),
+                   actions=np.zeros((n, e), dtype=np.int64),
+                   step_rewards=np.zeros((n, max_len, e), dtype=np.float64),
+                   lengths=np.ones((n, e), dtype=np.int64),
+                   terminated=np.zeros((n, e), dtype=bool),
+                   truncated=np.zeros((n, e), dtype=bool),
+                   final_values=np.zeros((n, e), dtype=np.float64),
+                   inner_obs=np.zeros((n, max(max_len - 1, 1), e, *space.shape),
+                                      dtype=space.dtype),
+                   a2c_discounts=np.full((n, e), gamma))
+
+
+def store_step(rollout: Rollout, step: int, args: Args, max_len: int, reward: np.ndarray,
+               term: np.ndarray, trunc: np.ndarray, info: dict) -> None:
+    """Store what decision `step` of each env ran: its routine's length, primitive rewards
+    (scaled) and, RAPL, the states inside it (a2c: one step, its reward)."""
+    rollout.terminated[step], rollout.truncated[step] = term, trunc
+    if args.mode == "a2c":  # lengths: all 1 (as allocated)
+        rollout.step_rewards[step, 0] = reward
+    else:
+        done = term | trunc
+        rollout.lengths[step] = merge_final(info, "routine_length", done)
+        rollout.step_rewards[step] = merge_final(info, "routine_rewards", done).T
+        if args.mode == "rapl" and max_len > 1:
+            inner = merge_final(info, "routine_observations", done)
+            rollout.inner_obs[step] = np.swapaxes(inner[:, : max_len - 1], 0, 1)
+    if args.reward_scale != 1.0:
+        rollout.step_rewards[step] *= args.reward_scale
+
+
+def cut_episode_values(agent: Agent, info: dict, trunc: np.ndarray,
+                       device: torch.device) -> np.ndarray:
+    """V of the last observation of each episode cut (truncated) at this step: its bootstrap."""
+    final_obs = np.stack([info["final_obs"][i] for i in np.flatnonzero(trunc)])
+    with torch.no_grad():
+        return agent.get_value(torch.as_tensor(final_obs, device=device)).cpu().numpy()
+
+
+def decision_rewards(args: Args, rews: np.ndarray, lens: np.ndarray, acts: np.ndarray,
+                     num_primitives: int, a2c_discounts: np.ndarray):
+    """Each decision's reward and discount. RAPL: discounted routine reward and γ^ℓ (the
+    authors' code: γ^(ℓ−1) for a routine); MacroAction: summed reward and one γ per decision;
+    A2C: a decision's one reward and γ (both others' numbers, with ℓ = 1)."""
+    if args.mode == "a2c":
+        return rews[:, 0], a2c_discounts
+    if args.mode == "macro":
+        return macro_reward_and_discount(rews, lens, args.gamma)
+    rewards, discounts = routine_reward_and_discount(rews, lens, args.gamma)
+    if args.routine_discount == "authors":
+        discounts = routine_discount_minus_one(lens, acts >= num_primitives, args.gamma)
+    return rewards, discounts
+
+
+def primitive_value_loss(agent: Agent, args: Args, rollout: Rollout, d: int, next_obs,
+                         bootstrap: np.ndarray, max_len: int, device: torch.device):
+    """RAPL's critic loss at primitive states, ‖A_prim‖² (0 elsewhere): at every state inside
+    a routine (step j ≥ 1 of a decision), on the return to the rollout's end (the paper), or
+    at the first N primitive steps of each env's rollout, N-step TD (the authors' code)."""
+    n, e = args.num_steps, args.num_envs
+    obs_shape = rollout.obs.shape[2:]
+    lens, finals = rollout.lengths[:d], rollout.final_values[:d]
+    if args.mode == "rapl" and args.prim_states == "first-n":
+        where, inside = first_steps(rollout.lengths, n)
+        env_of = np.broadcast_to(np.arange(e), where.shape)
+        states = rollout.inner_obs[np.minimum(where, n - 1), np.maximum(inside - 1, 0), env_of]
+        at_decision = (inside == 0) & (where < n)  # a decision's own state
+        states[at_decision] = rollout.obs[where[at_decision], env_of[at_decision]]
+        after = where == n  # the state after the rollout's last decision
+        states[after] = next_obs[env_of[after]]
+        state_values = agent.get_value(
+            torch.as_tensor(states.reshape(-1, *obs_shape), device=device)).view(n + 1, e)
+        targets = window_returns(rollout.step_rewards, rollout.lengths, rollout.terminated,
+                                 rollout.truncated, rollout.final_values, where, inside,
+                                 state_values[n].detach().cpu().numpy(), args.gamma)
+        targets = torch.as_tensor(targets, dtype=torch.float32, device=device)
+        return (targets - state_values[:n]).pow(2).mean()
+    if args.mode == "rapl" and max_len > 1:
+        prim = primitive_returns(rollout.step_rewards[:d], lens, rollout.terminated[:d],
+                                 rollout.truncated[:d], finals, bootstrap, args.gamma)
+        inner_states, prim_targets = inner_states_and_targets(rollout.inner_obs[:d], prim, lens)
+        if len(prim_targets):
+            states = torch.as_tensor(inner_states, device=device)
+            targets = torch.as_tensor(prim_targets, dtype=torch.float32, device=device)
+            return (targets - agent.get_value(states)).pow(2).mean()
+    return torch.zeros((), device=device)
+
+
+def evaluate_agent(run, agent: Agent, args: Args, demo, library, device: torch.device,
+                   **counters: int) -> None:
+    """Full games on the evaluation view (Procgen: unseen levels), aligned with the demo the
+    routines came from when there is one; then --extra-evals and --record-demo."""
+    def policy(obs):
+        with torch.no_grad():
+            action, _, _, _ = agent.get_action_and_value(
+                torch.as_tensor(np.asarray(obs)[None], device=device))
+        return int(action[0])
+
+    run.finish(policy, model=agent, method=args.mode, demo=demo, routines=library,
+               env_kwargs=eval_env_kwargs(args), **counters)
+
+
 def main(args: Args) -> None:
     # An explicit --total-timesteps on --resume sets a new budget: higher to train on, or at
     # most the steps done to go straight to evaluation and demo recording.
@@ -335,56 +537,14 @@ def main(args: Args) -> None:
     args, device, writer = run.args, run.device, run.writer
     for levels in args.extra_evals:
         level_env_kwargs(args, levels)  # refused now, not after training
-
-    # Routines: mined from the demo (or loaded), printed with action names, saved with the run.
-    demo, library = None, None
-    if args.mode != "a2c":
-        # Loaded on --resume too (the library is the checkpoint's): the evaluation aligns with it.
-        demo = run.routine_demo(f"--mode {args.mode}")
-        library = run.routines(demo, meanings=lambda: action_meanings(args),
-                               env_kwargs=train_env_kwargs(args), required=f"--mode {args.mode}")
-
-    # Env setup: same-step autoreset, so the step that ends an episode returns the reset obs.
-    # (MinAtar: all games stepped in one call, `routine_gym.envs.minatar_vector`.)
-    envs = make_vector_env(args.env_id, args.num_envs, args.seed, routines=library,
-                           training=True, record_observations=args.mode == "rapl",
-                           env_kwargs=train_env_kwargs(args), capture_video=args.capture_video,
-                           run_name=run.name, first_video_episode=run.first_video_episode,
-                           async_envs=args.async_envs)
-    assert isinstance(envs.single_action_space, gym.spaces.Discrete), "only discrete actions"
-    num_actions = int(envs.single_action_space.n)
+    demo, library = load_routines(run, args)
+    envs = make_envs(run, args, library)
+    agent, optimizer = make_agent(args, envs, device)
     num_routines = len(library) if library is not None else 0
-    num_primitives = num_actions - num_routines
+    num_primitives = int(envs.single_action_space.n) - num_routines
     max_len = max(library.lengths) if library is not None else 1
-
-    agent = Agent(args.env_id, envs.single_observation_space, num_actions).to(device)
-    # foreach: one kernel per step for all tensors instead of a loop (same arithmetic)
-    optimizer = torch.optim.RMSprop(agent.parameters(), lr=args.learning_rate,
-                                    alpha=args.rmsprop_alpha, eps=args.rmsprop_eps, foreach=True)
-
-    # Rollout storage, time-major: [decision, env] and [decision, step in routine, env].
     n, e = args.num_steps, args.num_envs
-    obs_shape = envs.single_observation_space.shape
-    obs_dtype = envs.single_observation_space.dtype
-    # The storage below, refused now when it cannot fit (--num-steps, --num-envs, the routines).
-    check_rollout_memory(envs.single_observation_space, n, e,
-                         observations=1 + max(max_len - 1, 1), numbers=5 + max_len)
-    actions = np.zeros((n, e), dtype=np.int64)
-    step_rewards = np.zeros((n, max_len, e), dtype=np.float64)
-    lengths = np.ones((n, e), dtype=np.int64)
-    terminated = np.zeros((n, e), dtype=bool)
-    truncated = np.zeros((n, e), dtype=bool)
-    final_values = np.zeros((n, e), dtype=np.float64)
-    inner_obs = np.zeros((n, max(max_len - 1, 1), e, *obs_shape), dtype=obs_dtype)
-    first_n = args.mode == "rapl" and args.prim_states == "first-n"
-    # --update-forward auto: the acting passes' graphs for the large CNNs (a second pass over
-    # the rollout would cost about a fifth of their time), one batched pass for the others.
-    keep_graph = args.update_forward == "acting" or (
-        args.update_forward == "auto"
-        and profile_for(args.env_id).network in ("nature_cnn", "impala_cnn"))
-    rollout_obs = np.zeros((n + 1, e, *obs_shape), dtype=obs_dtype)  # + the state after it
-    a2c_discounts = np.full((n, e), args.gamma)
-    decision_obs = rollout_obs[:n]
+    rollout = allocate_rollout(envs.single_observation_space, n, e, max_len, args.gamma)
     steps_sized = args.rollout_unit == "steps" and args.mode != "a2c"  # A2C: the same rollout
 
     # What a checkpoint holds; a resumed run starts where its checkpoint left off.
@@ -393,15 +553,10 @@ def main(args: Args) -> None:
         {"model": agent, "optimizer": optimizer}, global_step=0, iteration=0, decisions=0,
         count="decisions" if args.budget_unit == "decisions" else "global_step", filmed=envs,
         extra={"library": json.dumps(library.to_dict()) if library is not None else ""})
-
     # The env is reset with a seed that depends on where the run is, so a resumed run does not
     # replay the episodes it already saw.
     next_obs, _ = envs.reset(seed=train_seed(args.seed, args.seed_stride, global_step))
-    start_time, start_step, start_decisions = time.time(), global_step, decisions
-    logs = Every(args.log_every, start=budget_spent(args.budget_unit, global_step, decisions))
-    routine_counts = np.zeros(num_actions, dtype=np.int64)
-    counts = Counters(writer, num_primitives, num_routines)
-    recent_returns: list[float] = []
+    log = TrainingLog(writer, args, num_primitives, num_routines, global_step, decisions)
 
     while (spent := budget_spent(args.budget_unit, global_step, decisions)) \
             < args.total_timesteps:
@@ -410,52 +565,19 @@ def main(args: Args) -> None:
             frac = max(1.0 - spent / args.total_timesteps, 0.0)
             optimizer.param_groups[0]["lr"] = frac * args.learning_rate
 
-        # Acting keeps its graph for the update (--update-forward acting), or needs none: the
-        # update then runs the network once over the whole rollout.
-        acting_outputs = []
         for step in range(n):
-            obs_t = torch.as_tensor(next_obs, device=device)
-            if keep_graph:
-                action_t, logprob, entropy, value = agent.get_action_and_value(obs_t)
-                acting_outputs.append((logprob, entropy, value))
-            else:
-                with torch.inference_mode():
-                    action_t = agent.act(obs_t)
-            action = action_t.cpu().numpy()
-            actions[step] = action
-            decision_obs[step] = next_obs
+            action = agent.decide(torch.as_tensor(next_obs, device=device)).cpu().numpy()
+            rollout.actions[step], rollout.obs[step] = action, next_obs
             next_obs, reward, term, trunc, info = envs.step(action)
-            terminated[step], truncated[step] = term, trunc
+            store_step(rollout, step, args, max_len, reward, term, trunc, info)
             # Same-step autoreset: `final_obs` and `final_info` come when an episode ended.
-            ended = "final_obs" in info
-
-            if args.mode == "a2c":  # lengths: all 1 (as allocated)
-                step_rewards[step, 0] = reward
-            else:
-                done = term | trunc
-                lengths[step] = merge_final(info, "routine_length", done)
-                step_rewards[step] = merge_final(info, "routine_rewards", done).T
-                if args.mode == "rapl" and max_len > 1:
-                    inner = merge_final(info, "routine_observations", done)
-                    inner_obs[step] = np.swapaxes(inner[:, : max_len - 1], 0, 1)
-            if args.reward_scale != 1.0:
-                step_rewards[step] *= args.reward_scale
-            if ended and trunc.any():  # bootstrap a cut episode from its last obs's value
-                final_obs = np.stack([info["final_obs"][i] for i in np.flatnonzero(trunc)])
-                with torch.no_grad():
-                    v = agent.get_value(torch.as_tensor(final_obs, device=device))
-                final_values[step, trunc] = v.cpu().numpy()
-
-            ran = e if args.mode == "a2c" else int(lengths[step].sum())
+            if "final_obs" in info and trunc.any():  # bootstrap a cut episode from V(last obs)
+                rollout.final_values[step, trunc] = cut_episode_values(agent, info, trunc, device)
+            ran = e if args.mode == "a2c" else int(rollout.lengths[step].sum())
             global_step += ran
             decisions += e
-            if ended and "episode" in info["final_info"]:
-                final = info["final_info"]
-                for i in np.flatnonzero(final["_episode"]):
-                    ret, length = float(final["episode"]["r"][i]), int(final["episode"]["l"][i])
-                    recent_returns.append(ret)
-                    writer.add_scalar("charts/episodic_return", ret, global_step)
-                    writer.add_scalar("charts/episodic_length", length, global_step)
+            if "final_obs" in info:
+                log.episodes(info, global_step)
             # Rounded to the nearest vector step, and against the run's whole count, so that
             # U updates have seen U·N·num_envs primitive steps (± half a vector step).
             if steps_sized and global_step + ran / 2 >= iteration * n * e:
@@ -463,72 +585,27 @@ def main(args: Args) -> None:
 
         # The rollout's d decisions per env (n unless --rollout-unit steps ended it early).
         d = step + 1
-        acts, rews, lens = actions[:d], step_rewards[:d], lengths[:d]
-        terms, truncs, finals = terminated[:d], truncated[:d], final_values[:d]
-        chosen = np.bincount(acts.reshape(-1), minlength=num_actions)  # the rollout's choices
-        routine_counts += chosen
-        counts.add_counts(chosen, int(lens.sum()))
-
-        # Returns. RAPL: discounted routine reward and γ^ℓ; MacroAction: summed reward and one γ
-        # per decision; A2C: a decision's one reward and γ (both others' numbers, with ℓ = 1).
-        if args.mode == "a2c":
-            rewards, discounts = rews[:, 0], a2c_discounts[:d]
-        elif args.mode == "rapl":
-            rewards, discounts = routine_reward_and_discount(rews, lens, args.gamma)
-            if args.routine_discount == "authors":
-                discounts = routine_discount_minus_one(lens, acts >= num_primitives, args.gamma)
-        else:
-            rewards, discounts = macro_reward_and_discount(rews, lens, args.gamma)
-        if keep_graph:  # the acting passes' outputs, and the values of the states after
-            logprobs, entropies, values = (torch.cat(x) for x in zip(*acting_outputs, strict=True))
-            with torch.no_grad():
-                bootstrap = agent.get_value(torch.as_tensor(next_obs, device=device))
-            bootstrap = bootstrap.cpu().numpy()
-        else:
-            # One forward pass over the rollout's d·e decision states and the e states after
-            # it, whose values (detached) bootstrap the returns. Batched, each output is the
-            # acting pass's bit for bit (tests/test_rapl_a2c_update.py).
-            rollout_obs[d] = next_obs
-            logprobs, entropies, all_values = agent.evaluate(
-                torch.as_tensor(rollout_obs[: d + 1].reshape(-1, *obs_shape), device=device),
-                torch.as_tensor(acts.reshape(-1), device=device))
-            values = all_values[: d * e]
-            bootstrap = all_values[d * e:].detach().cpu().numpy()
-        returns = decision_returns(rewards, discounts, terms, truncs, finals, bootstrap)
+        acts, rews, lens = rollout.actions[:d], rollout.step_rewards[:d], rollout.lengths[:d]
+        log.rollout(acts, int(lens.sum()))
+        rewards, discounts = decision_rewards(args, rews, lens, acts, num_primitives,
+                                              rollout.a2c_discounts[:d])
+        # The update's forward pass: log π(a_i|s_i), H and V(s_i) of the d·e decisions, with
+        # their graph, and V of the states after the rollout, which bootstrap the returns.
+        rollout.obs[d] = next_obs
+        logprobs, entropies, values, bootstrap = agent.update_forward(rollout.obs[: d + 1],
+                                                                      next_obs, acts)
+        returns = decision_returns(rewards, discounts, rollout.terminated[:d],
+                                   rollout.truncated[:d], rollout.final_values[:d], bootstrap)
         b_returns = torch.as_tensor(returns, dtype=torch.float32, device=device)
         advantages = b_returns - values.view(d, e)  # A_routine, [d, e]
         pg_loss = -(logprobs.view(d, e) * advantages.detach()).mean()
         v_loss = advantages.pow(2).mean()
         entropy_loss = entropies.view(d, e).mean()
-
-        prim_loss = torch.zeros((), device=device)
-        if first_n:
-            # The authors' A_prim: the first N primitive steps of each env's rollout, N-step TD.
-            where, inside = first_steps(lengths, n)
-            env_of = np.broadcast_to(np.arange(e), where.shape)
-            states = inner_obs[np.minimum(where, n - 1), np.maximum(inside - 1, 0), env_of]
-            at_decision = (inside == 0) & (where < n)  # a decision's own state
-            states[at_decision] = decision_obs[where[at_decision], env_of[at_decision]]
-            after = where == n  # the state after the rollout's last decision
-            states[after] = next_obs[env_of[after]]
-            state_values = agent.get_value(
-                torch.as_tensor(states.reshape(-1, *obs_shape), device=device)).view(n + 1, e)
-            targets = window_returns(step_rewards, lengths, terminated, truncated, final_values,
-                                     where, inside, state_values[n].detach().cpu().numpy(),
-                                     args.gamma)
-            targets = torch.as_tensor(targets, dtype=torch.float32, device=device)
-            prim_loss = (targets - state_values[:n]).pow(2).mean()
-        elif args.mode == "rapl" and max_len > 1:
-            # A_prim at the primitive states inside routines (step j ≥ 1 of a decision).
-            prim = primitive_returns(rews, lens, terms, truncs, finals, bootstrap, args.gamma)
-            inner_states, prim_targets = inner_states_and_targets(inner_obs[:d], prim, lens)
-            if len(prim_targets):
-                states = torch.as_tensor(inner_states, device=device)
-                targets = torch.as_tensor(prim_targets, dtype=torch.float32, device=device)
-                prim_loss = (targets - agent.get_value(states)).pow(2).mean()
-
+        prim_loss = primitive_value_loss(agent, args, rollout, d, next_obs, bootstrap, max_len,
+                                         device)
         loss = pg_loss - args.ent_coef * entropy_loss \
             + args.vf_coef * critic_loss(v_loss, prim_loss, args.critic_loss, args.prim_coef)
+
         optimizer.zero_grad()
         loss.backward()
         grad_norm = nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
@@ -537,49 +614,14 @@ def main(args: Args) -> None:
             "entropy": entropy_loss})  # stop before a non-finite update is applied
         optimizer.step()
 
-        elapsed = max(time.time() - start_time, 1e-9)
-        spent = budget_spent(args.budget_unit, global_step, decisions)
-        if scalars_due(iteration, args.scalars_every, last=spent >= args.total_timesteps):
-            writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
-            writer.add_scalar("losses/value_loss", v_loss.item(), global_step)
-            writer.add_scalar("losses/prim_value_loss", prim_loss.item(), global_step)
-            writer.add_scalar("losses/policy_loss", pg_loss.item(), global_step)
-            writer.add_scalar("losses/entropy", entropy_loss.item(), global_step)
-            writer.add_scalar("charts/SPS", int((global_step - start_step) / elapsed), global_step)
-            writer.add_scalar("charts/decisions_per_second",
-                              int((decisions - start_decisions) / elapsed), global_step)
-            counts.log(global_step, decisions, iteration)
-            if num_routines:
-                usage = routine_counts / max(routine_counts.sum(), 1)
-                writer.add_scalar("routines/primitive_usage", usage[:num_primitives].sum(),
-                                  global_step)
-                for k in range(num_routines):
-                    writer.add_scalar(f"routines/usage_{k}", usage[num_primitives + k], global_step)
-
-        if logs.due(spent) or spent >= args.total_timesteps:
-            mean_ret = f"{np.mean(recent_returns[-20:]):.1f}" if recent_returns else "n/a"
-            usage = routine_counts[num_primitives:].sum() / max(routine_counts.sum(), 1)
-            progress = budget_progress(args.budget_unit, global_step, decisions,
-                                       args.total_timesteps)
-            print(f"{progress}  "
-                  f"SPS {int((global_step - start_step) / elapsed):>5d}  "
-                  f"return(last 20) {mean_ret:>8s}  episodes {len(recent_returns):>5d}  "
-                  f"routine use {usage:5.1%}", flush=True)
+        log.update(global_step, decisions, iteration, optimizer.param_groups[0]["lr"], {
+            "losses/value_loss": v_loss, "losses/prim_value_loss": prim_loss,
+            "losses/policy_loss": pg_loss, "losses/entropy": entropy_loss})
         run.checkpoint_if_due(global_step=global_step, iteration=iteration, decisions=decisions)
 
     envs.close()
-
-    def policy(obs):
-        with torch.no_grad():
-            action, _, _, _ = agent.get_action_and_value(
-                torch.as_tensor(np.asarray(obs)[None], device=device))
-        return int(action[0])
-
-    # Full games on the evaluation view (Procgen: unseen levels), aligned with the demo the
-    # routines came from when there is one; then --extra-evals and --record-demo.
-    run.finish(policy, model=agent, method=args.mode, demo=demo, routines=library,
-               env_kwargs=eval_env_kwargs(args), global_step=global_step, iteration=iteration,
-               decisions=decisions)
+    evaluate_agent(run, agent, args, demo, library, device, global_step=global_step,
+                   iteration=iteration, decisions=decisions)
 
 
 if __name__ == "__main__":

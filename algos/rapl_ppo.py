@@ -47,7 +47,6 @@ shorten_spin()  # before torch loads OpenMP: a shorter spin of its idle threads 
 
 import json
 import os
-import time
 import warnings
 from dataclasses import dataclass
 from typing import Literal
@@ -61,12 +60,11 @@ import routine_gym
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_primitive_env, make_vector_env
 from routine_gym.networks import ObservationEncoder, categorical_policy, layer_init
-from routine_gym.plumbing.counters import Counters, budget_progress, budget_spent, scalars_due
+from routine_gym.plumbing.counters import budget_spent
 from routine_gym.plumbing.divergence import check_update
 from routine_gym.plumbing.loading import unused_routine_flags
 from routine_gym.plumbing.memory import check_rollout_memory
 from routine_gym.plumbing.run import (
-    Every,
     eval_env_kwargs,
     level_env_kwargs,
     run_script,
@@ -74,6 +72,7 @@ from routine_gym.plumbing.run import (
     train_env_kwargs,
 )
 from routine_gym.plumbing.seeds import train_seed
+from routine_gym.plumbing.training_log import TrainingLog
 from routine_gym.ppo import (
     clipped_policy_loss,
     clipped_value_loss,
@@ -367,6 +366,147 @@ def values_of(agent: Agent, states: np.ndarray, device: torch.device,
     return np.concatenate(out) if out else np.zeros(0, dtype=np.float32)
 
 
+def load_routines(run, args: Args):
+    """The demo and the routine library of a run with routines (None, None with --mode ppo):
+    mined from the demo (or loaded), printed with action names, saved with the run; loaded on
+    --resume too (the library is the checkpoint's), so that the evaluation aligns with it."""
+    if args.mode == "ppo":
+        return None, None
+    demo = run.routine_demo(f"--mode {args.mode}")
+    library = run.routines(demo, meanings=lambda: action_meanings(args),
+                           env_kwargs=train_env_kwargs(args), required=f"--mode {args.mode}")
+    return demo, library
+
+
+def make_envs(run, args: Args, library):
+    """The training envs: same-step autoreset, so the step that ends an episode returns the
+    reset obs."""
+    envs = make_vector_env(args.env_id, args.num_envs, args.seed, routines=library,
+                           training=True, record_observations=args.mode == "rapl",
+                           env_kwargs=train_env_kwargs(args), capture_video=args.capture_video,
+                           run_name=run.name, first_video_episode=run.first_video_episode,
+                           async_envs=args.async_envs)
+    assert isinstance(envs.single_action_space, gym.spaces.Discrete), "only discrete actions"
+    return envs
+
+
+@dataclass
+class Rollout:
+    """A rollout's storage, time-major: [decision, env] and [decision, step in routine, env]."""
+
+    obs: np.ndarray
+    actions: np.ndarray
+    logprobs: np.ndarray
+    values: np.ndarray
+    step_rewards: np.ndarray  # [N, L, E]: the primitive rewards of each decision's routine
+    lengths: np.ndarray
+    terminated: np.ndarray
+    truncated: np.ndarray
+    final_values: np.ndarray  # V(last obs) of an episode cut at that decision
+    #: Step j ≥ 1 of a routine starts from the observation after step j − 1: [L − 1, 1].
+    inner_steps: np.ndarray
+    #: RAPL: per decision step, the states inside routines, [step, env] pairs in the order
+    #: of `inner_steps < lengths` (a list: their number varies).
+    inner_obs: list[np.ndarray]
+
+
+def allocate_rollout(space: gym.spaces.Box, n: int, e: int, max_len: int) -> Rollout:
+    """The storage of rollouts of `n` decisions of `e` envs with routines up to `max_len` long,
+    refused first (with its flattened copy for the minibatches and the routines' inner states)
+    when it cannot fit (--num-steps, --num-envs, the routines)."""
+    check_rollout_memory(space, n, e, observations=2 * max_len, numbers=8 + max_len)
+    return Rollout(obs=np.zeros((n, e, *space.shape), dtype=space.dtype),
+                   actions=np.zeros((n, e), dtype=np.int64),
+                   logprobs=np.zeros((n, e), dtype=np.float32),
+                   values=np.zeros((n, e), dtype=np.float32),
+                   step_rewards=np.zeros((n, max_len, e), dtype=np.float64),
+                   lengths=np.ones((n, e), dtype=np.int64),
+                   terminated=np.zeros((n, e), dtype=bool),
+                   truncated=np.zeros((n, e), dtype=bool),
+                   final_values=np.zeros((n, e), dtype=np.float64),
+                   inner_steps=np.arange(1, max_len)[:, None], inner_obs=[])
+
+
+def store_step(rollout: Rollout, step: int, args: Args, max_len: int, reward: np.ndarray,
+               term: np.ndarray, trunc: np.ndarray, info: dict) -> None:
+    """Store what decision `step` of each env ran: its routine's length, primitive rewards
+    (scaled) and, RAPL, the states inside it (ppo: one step, its reward)."""
+    done = term | trunc
+    rollout.terminated[step], rollout.truncated[step] = term, trunc
+    if args.mode == "ppo":
+        rollout.step_rewards[step, 0] = reward
+    else:
+        rollout.lengths[step] = merge_final(info, "routine_length", done)
+        rollout.step_rewards[step] = merge_final(info, "routine_rewards", done).T
+        if args.mode == "rapl" and max_len > 1:
+            inner = merge_final(info, "routine_observations", done)
+            inside_now = rollout.inner_steps < rollout.lengths[step][None, :]  # [L-1, E]
+            if inside_now.any():
+                rollout.inner_obs.append(np.swapaxes(inner[:, : max_len - 1], 0, 1)[inside_now])
+    if args.reward_scale != 1.0:
+        rollout.step_rewards[step] *= args.reward_scale
+
+
+def cut_episode_values(agent: Agent, info: dict, trunc: np.ndarray,
+                       device: torch.device) -> np.ndarray:
+    """V of the last observation of each episode cut (truncated) at this step: its bootstrap."""
+    final_obs = np.stack([info["final_obs"][i] for i in np.flatnonzero(trunc)])
+    with torch.inference_mode():
+        return agent.get_value(torch.as_tensor(final_obs, device=device)).cpu().numpy()
+
+
+def decision_rewards(args: Args, rollout: Rollout):
+    """Each decision's reward, discount and trace decay. RAPL: discounted routine reward, γ^ℓ
+    and λ^ℓ; PPO and MacroAction: summed reward, one γ and one λ per decision (PPO's
+    routines: length 1)."""
+    if args.mode == "rapl":
+        rewards, discounts = routine_reward_and_discount(rollout.step_rewards, rollout.lengths,
+                                                         args.gamma)
+        return rewards, discounts, routine_trace_decay(rollout.lengths, args.gae_lambda)
+    rewards, discounts = macro_reward_and_discount(rollout.step_rewards, rollout.lengths,
+                                                   args.gamma)
+    return rewards, discounts, np.full(rollout.lengths.shape, args.gae_lambda)
+
+
+def inner_targets(agent: Agent, args: Args, rollout: Rollout, returns: np.ndarray,
+                  bootstrap: np.ndarray, device: torch.device):
+    """A_prim (RAPL): how many states inside routines the rollout visited, and (when any)
+    those states, their λ-returns and their values now, as tensors (else None)."""
+    if not rollout.inner_obs:
+        return 0, None, None, None
+    inner_states = np.concatenate(rollout.inner_obs)
+    prim = inner_lambda_returns(rollout.step_rewards, rollout.lengths, rollout.terminated,
+                                rollout.truncated, rollout.final_values, rollout.values,
+                                returns, bootstrap, args.gamma, args.gae_lambda)
+    inside = rollout.inner_steps[None] < rollout.lengths[:, None, :]  # [N, L-1, E]
+    i_states = torch.as_tensor(inner_states, device=device)
+    i_returns = torch.as_tensor(prim[:, 1:][inside], dtype=torch.float32, device=device)
+    i_values = torch.as_tensor(values_of(agent, inner_states, device), device=device)
+    return len(inner_states), i_states, i_returns, i_values
+
+
+def explained_variance(values: np.ndarray, returns: np.ndarray) -> float:
+    """1 − Var(returns − values) / Var(returns) over a rollout (NaN when the returns are
+    constant), CleanRL's `losses/explained_variance`."""
+    y_pred, y_true = values.reshape(-1), returns.reshape(-1)
+    var_y = np.var(y_true)
+    return np.nan if var_y == 0 else 1 - np.var(y_true - y_pred) / var_y
+
+
+def evaluate_agent(run, agent: Agent, args: Args, demo, library, device: torch.device,
+                   **counters: int) -> None:
+    """Full games on the evaluation view (Procgen: unseen levels), aligned with the demo the
+    routines came from when there is one; then --extra-evals and --record-demo."""
+    def policy(observation):
+        with torch.no_grad():
+            action, _, _, _ = agent.get_action_and_value(
+                torch.as_tensor(np.asarray(observation)[None], device=device))
+        return int(action[0])
+
+    run.finish(policy, model=agent, method=METHODS[args.mode], demo=demo, routines=library,
+               env_kwargs=eval_env_kwargs(args), **counters)
+
+
 def main(args: Args) -> None:
     # An explicit --total-timesteps on --resume sets a new budget: higher to train on, or at
     # most the steps done to go straight to evaluation and demo recording.
@@ -375,69 +515,29 @@ def main(args: Args) -> None:
     args, device, writer = run.args, run.device, run.writer
     for levels in args.extra_evals:
         level_env_kwargs(args, levels)  # refused now, not after training
-
-    # Routines: mined from the demo (or loaded), printed with action names, saved with the run.
-    demo, library = None, None
-    if args.mode != "ppo":
-        # Loaded on --resume too (the library is the checkpoint's): the evaluation aligns with it.
-        demo = run.routine_demo(f"--mode {args.mode}")
-        library = run.routines(demo, meanings=lambda: action_meanings(args),
-                               env_kwargs=train_env_kwargs(args), required=f"--mode {args.mode}")
-
-    # Env setup: same-step autoreset, so the step that ends an episode returns the reset obs.
-    rapl = args.mode == "rapl"
-    envs = make_vector_env(args.env_id, args.num_envs, args.seed, routines=library,
-                           training=True, record_observations=rapl,
-                           env_kwargs=train_env_kwargs(args), capture_video=args.capture_video,
-                           run_name=run.name, first_video_episode=run.first_video_episode,
-                           async_envs=args.async_envs)
-    assert isinstance(envs.single_action_space, gym.spaces.Discrete), "only discrete actions"
+    demo, library = load_routines(run, args)
+    envs = make_envs(run, args, library)
     num_actions = int(envs.single_action_space.n)
     num_routines = len(library) if library is not None else 0
-    num_primitives = num_actions - num_routines
     max_len = max(library.lengths) if library is not None else 1
     # None only in a run resumed from a checkpoint made before --prim-epochs: every epoch.
     prim_epochs = args.prim_epochs if args.prim_epochs is not None else args.update_epochs
-
     agent = Agent(args.env_id, envs.single_observation_space, num_actions).to(device)
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5,
                                  foreach=True)
-
-    # Rollout storage, time-major: [decision, env] and [decision, step in routine, env].
     n, e = args.num_steps, args.num_envs
-    batch_size = n * e
-    obs_shape = envs.single_observation_space.shape
-    # The storage below (and its flattened copy for the minibatches), refused now when it
-    # cannot fit (--num-steps, --num-envs, the routines' inner states).
-    check_rollout_memory(envs.single_observation_space, n, e, observations=2 * max_len,
-                         numbers=8 + max_len)
-    obs = np.zeros((n, e, *obs_shape), dtype=envs.single_observation_space.dtype)
-    actions = np.zeros((n, e), dtype=np.int64)
-    logprobs = np.zeros((n, e), dtype=np.float32)
-    values = np.zeros((n, e), dtype=np.float32)
-    step_rewards = np.zeros((n, max_len, e), dtype=np.float64)
-    lengths = np.ones((n, e), dtype=np.int64)
-    terminated = np.zeros((n, e), dtype=bool)
-    truncated = np.zeros((n, e), dtype=bool)
-    final_values = np.zeros((n, e), dtype=np.float64)
-    # Step j ≥ 1 of a routine starts from the observation after step j − 1; for each decision
-    # the [step, env] pairs inside routines, in the order of `inside` below.
-    inner_steps = np.arange(1, max_len)[:, None]
+    rollout = allocate_rollout(envs.single_observation_space, n, e, max_len)
 
     # What a checkpoint holds; a resumed run starts where its checkpoint left off.
     global_step, iteration, decisions = run.resume(
         {"model": agent, "optimizer": optimizer}, global_step=0, iteration=0, decisions=0,
         count="decisions" if args.budget_unit == "decisions" else "global_step", filmed=envs,
         extra={"library": json.dumps(library.to_dict()) if library is not None else ""})
-
     # The env is reset with a seed that depends on where the run is, so a resumed run does not
     # replay the episodes it already saw.
     next_obs, _ = envs.reset(seed=train_seed(args.seed, args.seed_stride, global_step))
-    start_time, start_step, start_decisions = time.time(), global_step, decisions
-    logs = Every(args.log_every, start=budget_spent(args.budget_unit, global_step, decisions))
-    routine_counts = np.zeros(num_actions, dtype=np.int64)
-    counts = Counters(writer, num_primitives, num_routines)
-    recent_returns: list[float] = []
+    log = TrainingLog(writer, args, num_actions - num_routines, num_routines, global_step,
+                      decisions)
 
     while (spent := budget_spent(args.budget_unit, global_step, decisions)) \
             < args.total_timesteps:
@@ -446,89 +546,49 @@ def main(args: Args) -> None:
             frac = max(1.0 - spent / args.total_timesteps, 0.0)
             optimizer.param_groups[0]["lr"] = frac * args.learning_rate
 
-        inner_obs: list[np.ndarray] = []
+        rollout.inner_obs = []
         for step in range(n):
-            obs[step] = next_obs
+            rollout.obs[step] = next_obs
             with torch.inference_mode():
                 action_t, logprob_t, value_t = agent.act(torch.as_tensor(next_obs, device=device))
             action = action_t.cpu().numpy()
-            actions[step], logprobs[step] = action, logprob_t.cpu().numpy()
-            values[step] = value_t.cpu().numpy()
+            rollout.actions[step], rollout.logprobs[step] = action, logprob_t.cpu().numpy()
+            rollout.values[step] = value_t.cpu().numpy()
             next_obs, reward, term, trunc, info = envs.step(action)
-            done = term | trunc
-            terminated[step], truncated[step] = term, trunc
-
-            if args.mode == "ppo":
-                step_rewards[step, 0] = reward
-            else:
-                lengths[step] = merge_final(info, "routine_length", done)
-                step_rewards[step] = merge_final(info, "routine_rewards", done).T
-                if rapl and max_len > 1:
-                    inner = merge_final(info, "routine_observations", done)
-                    inside_now = inner_steps < lengths[step][None, :]  # [L-1, E]
-                    if inside_now.any():
-                        inner_obs.append(np.swapaxes(inner[:, : max_len - 1], 0, 1)[inside_now])
-            if args.reward_scale != 1.0:
-                step_rewards[step] *= args.reward_scale
+            store_step(rollout, step, args, max_len, reward, term, trunc, info)
             if trunc.any():  # bootstrap a cut episode from the value of its last observation
-                final_obs = np.stack([info["final_obs"][i] for i in np.flatnonzero(trunc)])
-                with torch.inference_mode():
-                    v = agent.get_value(torch.as_tensor(final_obs, device=device))
-                final_values[step, trunc] = v.cpu().numpy()
-
-            global_step += e if args.mode == "ppo" else int(lengths[step].sum())
+                rollout.final_values[step, trunc] = cut_episode_values(agent, info, trunc, device)
+            global_step += e if args.mode == "ppo" else int(rollout.lengths[step].sum())
             decisions += e
-            if done.any() and "episode" in info.get("final_info", {}):
-                final = info["final_info"]
-                for i in np.flatnonzero(final["_episode"]):
-                    ret, length = float(final["episode"]["r"][i]), int(final["episode"]["l"][i])
-                    recent_returns.append(ret)
-                    writer.add_scalar("charts/episodic_return", ret, global_step)
-                    writer.add_scalar("charts/episodic_length", length, global_step)
+            if (term | trunc).any():
+                log.episodes(info, global_step)
+        log.rollout(rollout.actions, int(rollout.lengths.sum()))
 
-        chosen = np.bincount(actions.reshape(-1), minlength=num_actions)  # the rollout's choices
-        routine_counts += chosen
-        counts.add_counts(chosen, int(lengths.sum()))
-
-        # Advantages. RAPL: discounted routine reward, γ^ℓ and a trace decay of λ^ℓ; PPO and
-        # MacroAction: summed reward, one γ and one λ per decision (PPO's routines: length 1).
+        # Advantages: SMDP GAE over the decisions (`decision_rewards`), and (RAPL) the
+        # λ-returns of the states inside routines, with their values before the update.
         with torch.inference_mode():
             bootstrap = agent.get_value(torch.as_tensor(next_obs, device=device)).cpu().numpy()
-        if rapl:
-            rewards, discounts = routine_reward_and_discount(step_rewards, lengths, args.gamma)
-            traces = routine_trace_decay(lengths, args.gae_lambda)
-        else:
-            rewards, discounts = macro_reward_and_discount(step_rewards, lengths, args.gamma)
-            traces = np.full(lengths.shape, args.gae_lambda)
-        advantages, returns = smdp_gae(rewards, discounts, traces, values, terminated, truncated,
-                                       final_values, bootstrap)
-
-        # A_prim (RAPL): the states inside routines, their λ-returns and their values now.
-        inner_states = np.concatenate(inner_obs) if inner_obs else obs[:0, 0]
-        num_inner = len(inner_states)
-        if num_inner:
-            prim = inner_lambda_returns(step_rewards, lengths, terminated, truncated,
-                                        final_values, values, returns, bootstrap, args.gamma,
-                                        args.gae_lambda)
-            inside = inner_steps[None] < lengths[:, None, :]  # [N, L-1, E]
-            i_states = torch.as_tensor(inner_states, device=device)
-            i_returns = torch.as_tensor(prim[:, 1:][inside], dtype=torch.float32, device=device)
-            i_values = torch.as_tensor(values_of(agent, inner_states, device), device=device)
+        rewards, discounts, traces = decision_rewards(args, rollout)
+        advantages, returns = smdp_gae(rewards, discounts, traces, rollout.values,
+                                       rollout.terminated, rollout.truncated,
+                                       rollout.final_values, bootstrap)
+        num_inner, i_states, i_returns, i_values = inner_targets(agent, args, rollout, returns,
+                                                                 bootstrap, device)
 
         # Flatten the batch.
-        b_obs = torch.as_tensor(obs.reshape(-1, *obs_shape), device=device)
-        b_actions = torch.as_tensor(actions.reshape(-1), device=device)
-        b_logprobs = torch.as_tensor(logprobs.reshape(-1), device=device)
+        b_obs = torch.as_tensor(rollout.obs.reshape(-1, *rollout.obs.shape[2:]), device=device)
+        b_actions = torch.as_tensor(rollout.actions.reshape(-1), device=device)
+        b_logprobs = torch.as_tensor(rollout.logprobs.reshape(-1), device=device)
         b_advantages = torch.as_tensor(advantages.reshape(-1), dtype=torch.float32,
                                        device=device)
         b_returns = torch.as_tensor(returns.reshape(-1), dtype=torch.float32, device=device)
-        b_values = torch.as_tensor(values.reshape(-1), device=device)
+        b_values = torch.as_tensor(rollout.values.reshape(-1), device=device)
 
         # Optimise the policy and the value network: epochs of shuffled minibatches; each
         # minibatch also takes its share of the states inside routines (RAPL) that its epoch
         # trains: each of them in --prim-epochs of the epochs, the epochs' shares dealt from
         # shuffled decks (`inner_state_shares`).
-        b_inds = np.arange(batch_size)
+        b_inds = np.arange(n * e)
         clipfracs = []
         prim_loss = torch.zeros((), device=device)
         shares = inner_state_shares(num_inner, args.update_epochs, prim_epochs)
@@ -581,56 +641,17 @@ def main(args: Args) -> None:
             if args.target_kl is not None and approx_kl > args.target_kl:
                 break
 
-        y_pred, y_true = values.reshape(-1), returns.reshape(-1)
-        var_y = np.var(y_true)
-        explained_var = np.nan if var_y == 0 else 1 - np.var(y_true - y_pred) / var_y
-        elapsed = max(time.time() - start_time, 1e-9)
-        spent = budget_spent(args.budget_unit, global_step, decisions)
-        if scalars_due(iteration, args.scalars_every, last=spent >= args.total_timesteps):
-            writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
-            writer.add_scalar("losses/value_loss", v_loss.item(), global_step)
-            writer.add_scalar("losses/prim_value_loss", prim_loss.item(), global_step)
-            writer.add_scalar("losses/policy_loss", pg_loss.item(), global_step)
-            writer.add_scalar("losses/entropy", entropy_loss.item(), global_step)
-            writer.add_scalar("losses/old_approx_kl", old_approx_kl.item(), global_step)
-            writer.add_scalar("losses/approx_kl", approx_kl.item(), global_step)
-            writer.add_scalar("losses/clipfrac", np.mean(clipfracs), global_step)
-            writer.add_scalar("losses/explained_variance", explained_var, global_step)
-            writer.add_scalar("charts/SPS", int((global_step - start_step) / elapsed), global_step)
-            writer.add_scalar("charts/decisions_per_second",
-                              int((decisions - start_decisions) / elapsed), global_step)
-            counts.log(global_step, decisions, iteration)
-            if num_routines:
-                usage = routine_counts / max(routine_counts.sum(), 1)
-                writer.add_scalar("routines/primitive_usage", usage[:num_primitives].sum(),
-                                  global_step)
-                for k in range(num_routines):
-                    writer.add_scalar(f"routines/usage_{k}", usage[num_primitives + k], global_step)
-
-        if logs.due(spent) or spent >= args.total_timesteps:
-            mean_ret = f"{np.mean(recent_returns[-20:]):.1f}" if recent_returns else "n/a"
-            usage = routine_counts[num_primitives:].sum() / max(routine_counts.sum(), 1)
-            progress = budget_progress(args.budget_unit, global_step, decisions,
-                                       args.total_timesteps)
-            print(f"{progress}  "
-                  f"SPS {int((global_step - start_step) / elapsed):>5d}  "
-                  f"return(last 20) {mean_ret:>8s}  episodes {len(recent_returns):>5d}  "
-                  f"routine use {usage:5.1%}", flush=True)
+        log.update(global_step, decisions, iteration, optimizer.param_groups[0]["lr"], {
+            "losses/value_loss": v_loss, "losses/prim_value_loss": prim_loss,
+            "losses/policy_loss": pg_loss, "losses/entropy": entropy_loss,
+            "losses/old_approx_kl": old_approx_kl, "losses/approx_kl": approx_kl,
+            "losses/clipfrac": np.mean(clipfracs),
+            "losses/explained_variance": explained_variance(rollout.values, returns)})
         run.checkpoint_if_due(global_step=global_step, iteration=iteration, decisions=decisions)
 
     envs.close()
-
-    def policy(observation):
-        with torch.no_grad():
-            action, _, _, _ = agent.get_action_and_value(
-                torch.as_tensor(np.asarray(observation)[None], device=device))
-        return int(action[0])
-
-    # Full games on the evaluation view (Procgen: unseen levels), aligned with the demo the
-    # routines came from when there is one; then --extra-evals and --record-demo.
-    run.finish(policy, model=agent, method=METHODS[args.mode], demo=demo, routines=library,
-               env_kwargs=eval_env_kwargs(args), global_step=global_step, iteration=iteration,
-               decisions=decisions)
+    evaluate_agent(run, agent, args, demo, library, device, global_step=global_step,
+                   iteration=iteration, decisions=decisions)
 
 
 if __name__ == "__main__":

@@ -94,3 +94,32 @@ def test_acting_draws_the_actions_get_action_and_value_draws(script):
                 agent.act(torch.as_tensor(o)) if act_only
                 else agent.get_action_and_value(torch.as_tensor(o))[0] for o in obs]))
     assert torch.equal(*draws) and len(set(draws[0].flatten().tolist())) > 1
+
+
+@pytest.mark.parametrize("keep_graph", [True, False])
+def test_decide_and_update_forward_give_both_forwards_the_same_outputs(script, keep_graph):
+    # `--update-forward` behind one pair of Agent methods: the acting passes' kept graphs, or
+    # one pass over the rollout, give the same draws and the same outputs bit for bit (each
+    # state's network output does not depend on its batch), with a graph to train on.
+    obs, _, _ = _rollout(seed=3)  # the sizes of the first test (bit for bit at these)
+    n, e = obs.shape[0] - 1, obs.shape[1]
+    space = gym.spaces.Box(0.0, 1.0, obs.shape[2:], np.float32)
+    torch.manual_seed(0)
+    reference = script.Agent("MinAtar/Breakout-v1", space, 6)
+    torch.manual_seed(0)
+    agent = script.Agent("MinAtar/Breakout-v1", space, 6, keep_graph=keep_graph)
+    for _ in range(2):  # a second rollout: the first one's kept passes are gone
+        torch.manual_seed(7)
+        actions = np.stack([agent.decide(torch.as_tensor(obs[s])).numpy() for s in range(n)])
+        torch.manual_seed(7)
+        with torch.no_grad():
+            expected = [reference.get_action_and_value(torch.as_tensor(obs[s]))
+                        for s in range(n)]
+        logprobs, entropies, values, bootstrap = agent.update_forward(obs, obs[n], actions)
+        assert np.array_equal(actions, np.stack([x[0].numpy() for x in expected]))
+        for k, got in ((1, logprobs), (2, entropies), (3, values)):
+            assert got.shape == (n * e,) and got.requires_grad
+            assert torch.equal(got.detach(), torch.cat([x[k] for x in expected]))
+        with torch.no_grad():
+            assert np.array_equal(bootstrap,
+                                  reference.get_value(torch.as_tensor(obs[n])).numpy())
