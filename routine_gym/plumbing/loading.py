@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import re
 import warnings
+from collections.abc import Callable
 from typing import Any
 
 import gymnasium as gym
@@ -26,7 +27,8 @@ from routine_gym.errors import UsageError
 from routine_gym.library import RoutineLibrary
 from routine_gym.mining import MAX_ROUTINE_LENGTH, make_proposer
 
-__all__ = ["check_demo_env", "load_demo", "load_routines", "unused_routine_flags"]
+__all__ = ["check_demo_env", "load_demo", "load_routines", "run_demo", "run_library",
+           "unused_routine_flags"]
 
 #: The `Args` fields that only mining a demo reads (a saved library's routines are taken whole).
 MINING_FLAGS = ("proposer", "length_weight", "alpha", "min_routine_length",
@@ -293,3 +295,74 @@ def unused_routine_flags(args: Any, no_routines: str | None, demo_only_mined: bo
         wanted = "left out" if default is None else f"{default}"
         rules.append((name, getattr(args, name) == default, f"{wanted} with {cause}"))
     return rules
+
+
+def run_library(args: Any, checkpoint: dict[str, Any] | None, folder: str, demo: Any = None,
+                *, meanings: Callable[[], Any] | None = None,
+                env_kwargs: dict[str, Any] | None = None, required: str | None = None) -> Any:
+    """A run's routine library, set up in one call: the resumed `checkpoint`'s, else the best
+    K of `--routine-library`, else mined from `demo` with the run's miner flags
+    (`--num-routines`, `--proposer`, `--length-weight`, `--alpha`, `--seed`,
+    `--min-routine-length`, `--max-routine-length`, `--selection`). A library is printed with
+    action names (`meanings()`, called only then) and saved as `folder/routines.json`.
+
+    Args:
+        args: the script's `Args`.
+        checkpoint: the resumed checkpoint, or None for a new run.
+        folder: the run's folder.
+        demo: the demo to mine (None with `--routine-library`).
+        meanings: the action names, asked for only when there is a library to print.
+        env_kwargs: the env a saved library is checked against (`load_routines`).
+        required: finding no routine is an error naming it (`"--mode rapl"`).
+
+    Returns:
+        The `RoutineLibrary`, or None (K = 0, or nothing mined and not required).
+    """
+    import json
+    import os
+
+    if checkpoint is not None and checkpoint["library"]:
+        library = RoutineLibrary.from_dict(json.loads(checkpoint["library"]))
+    else:
+        library = load_routines(
+            args.env_id, args.num_routines, demo=demo, library_path=args.routine_library,
+            proposer=args.proposer, length_weight=args.length_weight, alpha=args.alpha,
+            seed=args.seed, min_length=getattr(args, "min_routine_length", 2),
+            source={"path": args.demo}, max_length=args.max_routine_length,
+            env_kwargs=env_kwargs, required=required,
+            **({"selection": args.selection}
+               if getattr(args, "selection", "paper") != "paper" else {}),
+        )
+    if library is not None:
+        print(library.describe(meanings() if meanings is not None else None))
+        library.save(os.path.join(folder, "routines.json"))
+    return library
+
+
+def run_demo(args: Any, *, resumed: bool, purpose: str) -> Any:
+    """The demo a run's routines are mined from and its evaluation aligns with (None with
+    `--routine-library`): `--demo`, else the env's shipped one, loaded on a new run and on
+    `--resume` alike, so that a resumed run's `eval.json` keeps its alignment and demo score.
+    On `--resume` a demo gone since is a warning, not an error: the run goes on (its routines
+    are the checkpoint's) and is evaluated without alignment.
+
+    Args:
+        args: the script's `Args` (`args.demo` is set to the path loaded).
+        resumed: whether the run is resumed.
+        purpose: what needs the demo, for a missing one's message (`"--mode rapl"`).
+    """
+    import sys
+
+    if args.routine_library is not None:
+        return None
+    try:
+        demo, args.demo = load_demo(args.env_id, args.demo, purpose=purpose)
+    except (UsageError, FileNotFoundError) as exc:
+        if not resumed:
+            raise
+        from routine_gym.errors import one_line
+
+        print(f"warning: {one_line(exc)}; the evaluation has no alignment",
+              file=sys.stderr, flush=True)
+        return None
+    return demo

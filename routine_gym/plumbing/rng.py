@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
-__all__ = ["rng_state", "set_rng_state"]
+__all__ = ["rng_state", "seed_and_tune", "set_rng_state"]
 
 
 def rng_state(generator: np.random.Generator | None = None) -> dict[str, Any]:
@@ -54,3 +54,21 @@ def set_rng_state(state: dict[str, Any], generator: np.random.Generator | None =
         if "generator" not in state:
             raise ValueError("the checkpoint has no generator state to restore")
         generator.bit_generator.state = json.loads(state["generator"])
+
+
+def seed_and_tune(seed: int, torch_threads: int) -> None:
+    """What `start_run` sets for the whole process, also what the benchmarks' workers set to time
+    a script's work as the script runs it: Python's, NumPy's and torch's global seeds, no
+    checking of distribution arguments, torch's threads (`torch_threads` > 0; 0 leaves torch's
+    own count) and freed memory kept for reuse (`routine_gym.plumbing.memory`)."""
+    random.seed(seed)
+    np.random.seed(seed)  # noqa: NPY002  (libraries draw from the global RNG)
+    torch.manual_seed(seed)
+    # The scripts build their distributions from network outputs that are valid by
+    # construction; checking them costs about a tenth of a MinAtar step (sampling is the same).
+    torch.distributions.Distribution.set_default_validate_args(False)
+    if torch_threads > 0:
+        torch.set_num_threads(torch_threads)
+    from routine_gym.plumbing.memory import keep_freed_memory
+
+    keep_freed_memory()  # a minibatch's blocks are reused, not page-faulted in again

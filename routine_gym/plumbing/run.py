@@ -29,7 +29,6 @@ import contextlib
 import io
 import json
 import os
-import random
 import sys
 import time
 from collections.abc import Callable, Iterable
@@ -49,9 +48,15 @@ from routine_gym.plumbing.divergence import (
     as_divergence,
     check_parameters,
 )
+from routine_gym.plumbing.env_setup import (
+    check_env,
+    eval_env_kwargs,
+    level_env_kwargs,
+    profile_reward_scale,
+    train_env_kwargs,
+)
 from routine_gym.plumbing.folder_lock import LOCK_FILE, hold_folder
-from routine_gym.plumbing.memory import keep_freed_memory
-from routine_gym.plumbing.rng import rng_state, set_rng_state
+from routine_gym.plumbing.rng import rng_state, seed_and_tune, set_rng_state
 from routine_gym.plumbing.seeds import demo_seed, eval_seed, stride_checks
 
 __all__ = [
@@ -217,42 +222,12 @@ class Run:
     def routines(self, demo: Any = None, *, meanings: Callable[[], Any] | None = None,
                  env_kwargs: dict[str, Any] | None = None, required: str | None = None
                  ) -> Any:
-        """The run's routine library, set up in one call: the resumed checkpoint's, else the
-        best K of `--routine-library`, else mined from `demo` with the run's miner flags
-        (`--num-routines`, `--proposer`, `--length-weight`, `--alpha`, `--seed`,
-        `--min-routine-length`, `--max-routine-length`, `--selection`). A library is printed
-        with action names (`meanings()`, called only then) and saved as the run's
-        `routines.json`.
+        """The run's routine library, set up in one call and saved as its `routines.json`
+        (`plumbing.loading.run_library`, whose arguments these are)."""
+        from routine_gym.plumbing.loading import run_library
 
-        Args:
-            demo: the demo to mine (None with `--routine-library`).
-            meanings: the action names, asked for only when there is a library to print.
-            env_kwargs: the env a saved library is checked against (`load_routines`).
-            required: finding no routine is an error naming it (`"--mode rapl"`).
-
-        Returns:
-            The `RoutineLibrary`, or None (K = 0, or nothing mined and not required).
-        """
-        from routine_gym.library import RoutineLibrary
-        from routine_gym.plumbing.loading import load_routines
-
-        args = self.args
-        if self.checkpoint is not None and self.checkpoint["library"]:
-            library = RoutineLibrary.from_dict(json.loads(self.checkpoint["library"]))
-        else:
-            library = load_routines(
-                args.env_id, args.num_routines, demo=demo, library_path=args.routine_library,
-                proposer=args.proposer, length_weight=args.length_weight, alpha=args.alpha,
-                seed=args.seed, min_length=getattr(args, "min_routine_length", 2),
-                source={"path": args.demo}, max_length=args.max_routine_length,
-                env_kwargs=env_kwargs, required=required,
-                **({"selection": args.selection}
-                   if getattr(args, "selection", "paper") != "paper" else {}),
-            )
-        if library is not None:
-            print(library.describe(meanings() if meanings is not None else None))
-            library.save(os.path.join(self.path, "routines.json"))
-        return library
+        return run_library(self.args, self.checkpoint, self.path, demo, meanings=meanings,
+                           env_kwargs=env_kwargs, required=required)
 
     @property
     def first_video_episode(self) -> int:
@@ -274,31 +249,11 @@ class Run:
             return self.first_video_episode + int(self._filmed.get_attr("episode_count")[0])
         return self.first_video_episode
     def routine_demo(self, purpose: str) -> Any:
-        """The demo the run's routines are mined from and its evaluation aligns with (None
-        with `--routine-library`): `--demo`, else the env's shipped one, loaded on a new run
-        and on `--resume` alike, so that a resumed run's `eval.json` keeps its alignment and
-        demo score. On `--resume` a demo gone since is a warning, not an error: the run goes
-        on (its routines are the checkpoint's) and is evaluated without alignment.
+        """The demo the run's routines are mined from and its evaluation aligns with
+        (`plumbing.loading.run_demo`)."""
+        from routine_gym.plumbing.loading import run_demo
 
-        Args:
-            purpose: what needs the demo, for a missing one's message (`"--mode rapl"`).
-        """
-        from routine_gym.plumbing.loading import load_demo
-
-        args = self.args
-        if args.routine_library is not None:
-            return None
-        try:
-            demo, args.demo = load_demo(args.env_id, args.demo, purpose=purpose)
-        except (UsageError, FileNotFoundError) as exc:
-            if self.checkpoint is None:
-                raise
-            from routine_gym.errors import one_line
-
-            print(f"warning: {one_line(exc)}; the evaluation has no alignment",
-                  file=sys.stderr, flush=True)
-            return None
-        return demo
+        return run_demo(self.args, resumed=self.checkpoint is not None, purpose=purpose)
 
     def resume(self, state: dict[str, Any], *, extra: dict[str, Any] | None = None,
                count: str | None = None, filmed: Any = None, **counters: int) -> Any:
@@ -463,38 +418,9 @@ class Run:
         return path
 
 
-def seed_and_tune(seed: int, torch_threads: int) -> None:
-    """What `start_run` sets for the whole process, also what the benchmarks' workers set to time
-    a script's work as the script runs it: Python's, NumPy's and torch's global seeds, no
-    checking of distribution arguments, torch's threads (`torch_threads` > 0; 0 leaves torch's
-    own count) and freed memory kept for reuse (`routine_gym.plumbing.memory`)."""
-    random.seed(seed)
-    np.random.seed(seed)  # noqa: NPY002  (libraries draw from the global RNG)
-    torch.manual_seed(seed)
-    # The scripts build their distributions from network outputs that are valid by
-    # construction; checking them costs about a tenth of a MinAtar step (sampling is the same).
-    torch.distributions.Distribution.set_default_validate_args(False)
-    if torch_threads > 0:
-        torch.set_num_threads(torch_threads)
-    keep_freed_memory()  # a minibatch's blocks are reused, not page-faulted in again
-
-
 def _with_stride_checks(extra: ExtraChecks) -> Callable[[Any], list]:
     """A script's own argument rules and `--seed-stride`'s (`plumbing.seeds.stride_checks`)."""
     return lambda args: [*(extra(args) if callable(extra) else extra), *stride_checks(args)]
-def profile_reward_scale(args: Any) -> None:
-    """Give a script's `--reward-scale` left unset (None) the env profile's
-    `EnvProfile.reward_scale`; a given flag wins, a resumed run keeps its saved scale. An env
-    id whose module cannot be imported is left to the run's env check, which names it (the
-    scale is then 1)."""
-    if not hasattr(args, "reward_scale") or args.reward_scale is not None:
-        return
-    from routine_gym.envs import profile_for
-
-    try:
-        args.reward_scale = profile_for(args.env_id).reward_scale
-    except ImportError:
-        args.reward_scale = 1.0
 
 
 def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
@@ -666,78 +592,3 @@ def _remove_failed_run(run: Run) -> None:
         import shutil
 
         shutil.rmtree(path, ignore_errors=True)
-
-
-def check_env(env_id: str) -> None:
-    """Refuse, before any work, an env the scripts cannot handle: one Gymnasium does not know,
-    one whose actions are not `Discrete(n)` from 0, or whose observations are not a `Box`.
-
-    Raises:
-        UsageError: naming the env id and the problem (and the wrapper that would help).
-    """
-    import gymnasium as gym
-
-    from routine_gym.envs import env_spec
-    from routine_gym.envs.factory import make_primitive_env
-
-    try:
-        spec = env_spec(env_id)
-    except ImportError as exc:
-        raise UsageError(f"--env-id {env_id}: cannot import its module ({exc})") from None
-    if spec is None:
-        raise UsageError(f"--env-id {env_id}: Gymnasium does not know this env (a typo? for an "
-                         "env of your own package, use the module:EnvId form)")
-    env = make_primitive_env(env_id)
-    try:
-        actions, observations = env.action_space, env.observation_space
-    finally:
-        env.close()
-    if not isinstance(actions, gym.spaces.Discrete):
-        raise UsageError(f"--env-id {env_id} has the action space {actions}; routine-gym's "
-                         "scripts need Discrete(n) actions")
-    if int(actions.start) != 0:
-        raise UsageError(f"--env-id {env_id} has the action space {actions}, which starts at "
-                         f"{int(actions.start)}; routine-gym's scripts need Discrete(n) from 0 "
-                         "(wrap it so its actions start at 0)")
-    if not isinstance(observations, gym.spaces.Box):
-        raise UsageError(f"--env-id {env_id} has the observation space {observations}; "
-                         "routine-gym's networks take Box observations: register the env "
-                         "wrapped in gymnasium.wrappers.FlattenObservation")
-
-
-def train_env_kwargs(args: Any) -> dict[str, Any]:
-    """The training levels of `args.env_id` (Procgen) from the script's level flags
-    (`num_levels`, `start_level`, `distribution_mode`); other families have none."""
-    from routine_gym.envs import profile_for
-
-    return profile_for(args.env_id).level_kwargs(
-        args.num_levels, args.start_level, args.distribution_mode, args.eval_distribution_mode,
-        training=True)
-
-
-def level_env_kwargs(args: Any, levels: str) -> dict[str, Any]:
-    """The levels `--extra-evals` names: `train` (the training levels), or `easy`/`hard` (the
-    unseen levels of that difficulty). Only for families with levels (Procgen).
-
-    Raises:
-        UsageError: `args.env_id`'s family has no levels.
-    """
-    from routine_gym.envs import profile_for
-
-    profile = profile_for(args.env_id)
-    if not profile.has_levels:
-        raise UsageError(f"--extra-evals {levels}: {args.env_id} has no levels (only Procgen "
-                         "envs do)")
-    if levels == "train":
-        return train_env_kwargs(args)
-    return profile.level_kwargs(args.num_levels, args.start_level, args.distribution_mode,
-                                levels, training=False)
-
-
-def eval_env_kwargs(args: Any) -> dict[str, Any]:
-    """The evaluation levels: Procgen's levels never trained on; other envs as in training."""
-    from routine_gym.envs import profile_for
-
-    return profile_for(args.env_id).level_kwargs(
-        args.num_levels, args.start_level, args.distribution_mode, args.eval_distribution_mode,
-        training=False)
