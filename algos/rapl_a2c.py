@@ -344,6 +344,9 @@ def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
     rapl_only = args.mode == "rapl"
     return [("min_routine_length", args.min_routine_length <= args.max_routine_length,
              f"≤ --max-routine-length ({args.max_routine_length})"),
+            # K = 0 left the routine env without its routine-length info: a KeyError mid-run.
+            ("num_routines", args.mode == "a2c" or args.num_routines >= 1,
+             "≥ 1 with --mode {rapl,macro} (--mode a2c has no routines)"),
             ("authors", rapl_only or not args.authors, "off unless --mode rapl"),
             ("routine_discount", rapl_only or args.routine_discount == "paper",
              "paper unless --mode rapl"),

@@ -281,6 +281,9 @@ def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
     batch = (args.num_envs or 1) * (args.num_steps or 1)
     return [("min_routine_length", args.min_routine_length <= args.max_routine_length,
              f"≤ --max-routine-length ({args.max_routine_length})"),
+            # K = 0 left the routine env without its routine-length info: a KeyError mid-run.
+            ("num_routines", args.mode == "ppo" or args.num_routines >= 1,
+             "≥ 1 with --mode {rapl,macro} (--mode ppo has no routines)"),
             ("num_minibatches", args.num_minibatches is None or args.num_minibatches <= batch,
              f"≤ --num-envs × --num-steps ({batch})"),
             ("target_kl", args.target_kl is None or args.target_kl > 0, "> 0"),
@@ -289,6 +292,9 @@ def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
              f"≤ --update-epochs ({args.update_epochs})"),
             ("prim_coef", args.mode == "rapl" or args.prim_coef == 1.0,
              "1.0 unless --mode rapl"),
+            # RAPL's inner states only; 1 is what a new run of any mode is given.
+            ("prim_epochs", args.mode == "rapl" or args.prim_epochs in (None, 1),
+             "1 (unset) unless --mode rapl"),
             # A routine flag a run would not read: every one with --mode ppo, the mining
             # flags and --demo with --routine-library.
             *unused_routine_flags(args, "--mode ppo" if args.mode == "ppo" else None)]

@@ -32,6 +32,7 @@ __all__ = [
     "atomic_write_chunks",
     "atomic_write_text",
     "check_folder",
+    "check_not_an_input",
     "check_name",
     "check_writable",
     "temporary_path",
@@ -149,6 +150,28 @@ def check_writable(path: str | os.PathLike, flag: str = "", suffix: str | None =
     if suffix is not None and not path.lower().endswith(suffix.lower()):
         raise UsageError(f"{what}needs a file name ending in {suffix} (the format written "
                          f"there), actual value: {path}")
+
+
+def check_not_an_input(out: str | os.PathLike | None, flag: str,
+                       *inputs: str | os.PathLike | None) -> None:
+    """Refuse an output that is one of the command's inputs, by name or through a link: it
+    would be overwritten (`mine X.npz --out X.npz`, a script's `--record-demo` over its
+    `--demo`). Unset inputs and outputs (None) pass.
+
+    Raises:
+        UsageError: `FLAG OUT is the input IN; it would be overwritten: choose another file`.
+    """
+    if out is None:
+        return
+    for given in inputs:
+        if given is None:
+            continue
+        same = os.path.realpath(out) == os.path.realpath(given)
+        with contextlib.suppress(OSError):
+            same = same or os.path.samefile(out, given)
+        if same:
+            raise UsageError(f"{flag} {os.fspath(out)} is the input {os.fspath(given)}; it "
+                             "would be overwritten: choose another file")
 
 
 def check_folder(folder: str | os.PathLike, flag: str = "") -> None:

@@ -18,7 +18,6 @@ Run `routine-gym COMMAND --help` for the options of each command.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import importlib
 import math
 import os
@@ -30,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from routine_gym.atomic import check_not_an_input
 from routine_gym.library import RoutineLibrary, routine_name
 
 
@@ -44,19 +44,6 @@ def _needs(flag: str, value: Any, holds: bool, what: str) -> None:
         holds, what = False, "a finite number" if holds else what
     if not holds:
         raise CLIError(f"{flag} needs to be {what}, actual value: {value}")
-
-
-def _not_an_input(out: str | None, flag: str, *inputs: str) -> None:
-    """Refuse an output that is one of the command's inputs (it would be overwritten)."""
-    if out is None:
-        return
-    for given in inputs:
-        same = os.path.realpath(out) == os.path.realpath(given)
-        with contextlib.suppress(OSError):
-            same = same or os.path.samefile(out, given)
-        if same:
-            raise CLIError(f"{flag} {out} is the input {given}; it would be overwritten: "
-                           "choose another file")
 
 
 def _load_demo(path: str):
@@ -80,7 +67,7 @@ def cmd_mine(args: argparse.Namespace) -> int:
     _needs("--max-routine-length", args.max_routine_length, args.max_routine_length >= 2, "≥ 2")
     _needs("--selection", args.selection, args.selection in SELECTIONS, " or ".join(SELECTIONS))
     if args.out is not None:  # `--out ""` is refused, not taken as no --out
-        _not_an_input(args.out, "--out", args.demo)
+        check_not_an_input(args.out, "--out", args.demo)
         check_writable(args.out, "--out", ".json")
     demo = _load_demo(args.demo)
     proposer = make_proposer(
@@ -274,7 +261,7 @@ def cmd_picture(args: argparse.Namespace) -> int:
     _needs("--num-routines", args.num_routines, args.num_routines >= 1, "≥ 1")
     _needs("--max-routines", args.max_routines, 1 <= args.max_routines <= 1000,
            "in [1, 1000]")
-    _not_an_input(args.out, "--out", args.source)
+    check_not_an_input(args.out, "--out", args.source)
     check_writable(args.out, "--out", ".png")
     if minari_dataset_id(args.source) is None and Path(args.source).is_dir():
         if args.routines is not None:
@@ -289,7 +276,7 @@ def cmd_picture(args: argparse.Namespace) -> int:
         return 0
     demo = _load_demo(args.source)
     if args.routines is not None:
-        _not_an_input(args.out, "--out", args.routines)
+        check_not_an_input(args.out, "--out", args.routines)
         library = RoutineLibrary.load(args.routines)
     else:
         with warnings.catch_warnings(record=True) as caught:

@@ -86,6 +86,10 @@ METADATA_KEY = "routine_gym"
 DECISION_INFO = "decision"
 _EXPORT_FORMAT = "routine-gym/minari"
 _INSTALL_HINT = "pip install routine-gym[minari]"
+#: The variable that names the local Minari folder (Minari's own).
+DATASETS_VARIABLE = "MINARI_DATASETS_PATH"
+#: The longest name a file system takes for one folder of a dataset's path (Linux, macOS).
+_NAME_MAX = 255
 
 
 def minari_dataset_id(source: str | os.PathLike | None) -> str | None:
@@ -110,20 +114,55 @@ def read_demo(source: str | os.PathLike, env_id: str | None = None) -> Demo:
 
 
 def _minari(what: str):
-    """The `minari` package, with the Arrow support its datasets are written in; a UsageError
-    that says how to install it when it is missing."""
+    """The `minari` package, with the Arrow support its datasets are written in, once the
+    local Minari folder is one (`_check_datasets_root`); a UsageError that says how to install
+    it when it is missing."""
     try:
         import minari
         import pyarrow  # noqa: F401  (Minari's arrow backend)
     except ImportError as exc:
         raise UsageError(f"{what} needs the optional minari package ({exc.name} is not "
                          f"installed): {_INSTALL_HINT}") from None
+    _check_datasets_root()
     return minari
 
 
+def _check_datasets_root() -> None:
+    """Make a relative `MINARI_DATASETS_PATH` absolute, and refuse one that cannot be a folder.
+
+    Minari reads the variable itself at every call. A relative one it joins onto itself when
+    it writes an episode (`m/.x/data/m/.x/data/0`: every export failed), so it is made
+    absolute for the rest of the process; a file on the way was a FileExistsError traceback
+    from Minari's `os.makedirs`.
+
+    Raises:
+        UsageError: the variable is empty, or the folder (or one above it) is a file.
+    """
+    given = os.environ.get(DATASETS_VARIABLE)
+    if given is not None:
+        if not given.strip():
+            raise UsageError(f"{DATASETS_VARIABLE} is empty: unset it (~/.minari/datasets) or "
+                             "name the folder of the local Minari datasets")
+        os.environ[DATASETS_VARIABLE] = os.path.abspath(os.path.expanduser(given))
+    root = Path(os.environ.get(DATASETS_VARIABLE) or Path.home() / ".minari" / "datasets")
+    for folder in (root, *root.parents):
+        if folder.exists():
+            if not folder.is_dir():
+                named = f"{DATASETS_VARIABLE}={given}" if given is not None else str(root)
+                raise UsageError(f"{named}: {folder} is a file, not a folder; the local Minari "
+                                 "datasets cannot be there")
+            return
+
+
 def _check_dataset_id(dataset_id: str) -> None:
+    """Refuse an id Minari would not parse, or whose folder names the file system refuses."""
     from minari.dataset.minari_dataset import parse_dataset_id
 
+    too_long = [part for part in dataset_id.split("/") if len(os.fsencode(part)) > _NAME_MAX]
+    if too_long:  # Minari would parse it, then the first stat was an OSError traceback
+        raise UsageError(f"Minari dataset id {dataset_id[:40]}...: a part of "
+                         f"{len(too_long[0])} characters, longer than a file name may be "
+                         f"({_NAME_MAX} bytes)")
     try:
         parse_dataset_id(dataset_id)  # raises ValueError, or TypeError for a missing version
     except (ValueError, TypeError):

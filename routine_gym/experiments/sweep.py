@@ -62,6 +62,7 @@ from routine_gym.experiments.folder_lock import sweep_lock
 from routine_gym.experiments.registry import EXPERIMENTS, available, build, games, left_out
 from routine_gym.experiments.results import result_problem
 from routine_gym.experiments.specs import BUDGETS, Entry, RunSpec
+from routine_gym.plumbing.arguments import MAX_TORCH_THREADS, usable_cpus
 
 __all__ = ["CONNECT_TIMEOUT", "SweepSummary", "check_options", "check_ray_address", "plan",
            "run_experiment"]
@@ -249,6 +250,9 @@ def check_options(backend: str = "local", jobs: int = 1, cpus_per_run: int = 1,
         raise UsageError(f"--backend needs to be local or ray, actual value: {backend}")
     if jobs < 1:
         raise UsageError(f"--jobs needs to be ≥ 1, actual value: {jobs}")
+    if jobs > MAX_TORCH_THREADS:  # a process per job: 10^6 of them would exhaust the machine
+        raise UsageError(f"--jobs needs to be ≤ {MAX_TORCH_THREADS:,} (4 × the {usable_cpus()} "
+                         f"CPUs this process may use), actual value: {jobs:,}")
     if cpus_per_run < 1:
         raise UsageError(f"--cpus-per-run needs to be ≥ 1, actual value: {cpus_per_run}")
     if address is not None and backend != "ray":

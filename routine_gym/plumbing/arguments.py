@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import fields
 from typing import Any
 
+from routine_gym.atomic import check_not_an_input
 from routine_gym.errors import UsageError
 
 __all__ = ["DOMAINS", "ExtraChecks", "check_args", "given_flags", "parse_args", "usable_cpus"]
@@ -137,8 +138,11 @@ ExtraChecks = Iterable[tuple[str, bool, str]] | Callable[[Any], Iterable[tuple[s
 def check_args(args: Any, extra: ExtraChecks = ()) -> None:
     """Refuse any numeric flag outside its domain (`DOMAINS`), before any work starts.
 
-    A float flag that is not finite (`inf`, `nan`) is refused whatever its rule, and a rollout
-    (`--num-steps`) longer than the whole budget (`--total-timesteps`) is refused too.
+    A float flag that is not finite (`inf`, `nan`) is refused whatever its rule, and so is an
+    empty text flag (`--record-demo ''` recorded nothing and exited 0, `--resume ''` started a
+    new run: an empty name was taken as unset), and so is a `--record-demo` that is the run's
+    `--demo`; a rollout (`--num-steps`) longer than the whole budget (`--total-timesteps`) is
+    refused too.
 
     Args:
         args: a script's `Args`; every field named in `DOMAINS` is checked (None means unset
@@ -176,6 +180,12 @@ def check_args(args: Any, extra: ExtraChecks = ()) -> None:
         if isinstance(value, float) and not math.isfinite(value):
             raise UsageError(f"{_flag(f.name)} needs to be a finite number, actual value: "
                              f"{value}")
+        if isinstance(value, str) and not value.strip():
+            raise UsageError(f"{_flag(f.name)} needs a value (a name, path or word), actual "
+                             f"value: {value!r}")
+    # The agent's demo recorded over the one it learned from would replace it.
+    check_not_an_input(getattr(args, "record_demo", None), "--record-demo",
+                       getattr(args, "demo", None))
     steps, budget = getattr(args, "num_steps", None), getattr(args, "total_timesteps", None)
     if isinstance(steps, int) and isinstance(budget, int) and steps > budget:
         raise UsageError(f"--num-steps needs to be ≤ --total-timesteps ({budget:,}), actual "

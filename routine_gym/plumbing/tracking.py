@@ -54,9 +54,9 @@ def import_wandb() -> ModuleType:
 
 def check_tracking(project: str | None, entity: str | None) -> None:
     """Refuse, before any run starts, W&B settings that would fail every run's `wandb.init`:
-    wandb missing, a project or entity name W&B refuses (`a/b`: no `/\\#?%:`), or no W&B
-    credentials outside offline mode. A sweep otherwise started every run, each failed, and
-    the sweep advised the same command again.
+    wandb missing, a project or entity name W&B refuses (`a/b`: no `/\\#?%:`), a `WANDB_MODE`
+    it refuses, or no W&B credentials outside offline mode. A sweep otherwise started every
+    run, each failed, and the sweep advised the same command again.
 
     Raises:
         UsageError: one line naming the flag, or saying how to log in.
@@ -71,6 +71,16 @@ def check_tracking(project: str | None, entity: str | None) -> None:
         except Exception as exc:  # wandb's UsageError, or pydantic's ValidationError
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             raise UsageError(f"{flag} {value}: W&B refuses it ({first})") from None
+    mode = os.environ.get("WANDB_MODE")
+    if mode is not None:  # W&B reads it in wandb.init, mid-run: a pydantic traceback there
+        try:
+            wandb.Settings(mode=mode)
+        except Exception as exc:  # pydantic's ValidationError
+            lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+            allowed = next((line for line in lines if line.startswith("Input should be")),
+                           type(exc).__name__)
+            raise UsageError(f"WANDB_MODE={mode}: W&B refuses it "
+                             f"({allowed.split(' [type=')[0]})") from None
     if os.environ.get("WANDB_MODE", "").lower() in _LOCAL_MODES or os.environ.get(
             "WANDB_DISABLED", "").lower() in ("1", "true"):
         return
