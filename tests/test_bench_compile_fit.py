@@ -29,10 +29,10 @@ def test_a_short_fit_writes_its_report_and_is_not_judged(tmp_path):
     assert row["gru"].startswith("compiled loops (")  # avx2 or portable
     assert torch_loop["kind"] == "torch-loop" and torch_loop["gru"] == "torch loop"
     assert torch_loop["command"].startswith("ROUTINE_GYM_COMPILE_GRU=torch ")
-    assert torch_loop["returncode"] == 0 and torch_loop["decisions"] == 154
+    assert torch_loop["returncode"] == 0 and torch_loop["decisions"] == 286
     assert "| torch loop total s | ×ours |" in report
     assert row["returncode"] == 0 and row["error"] == ""
-    assert row["decisions"] == 154  # the shipped demo's decisions
+    assert row["decisions"] == 286  # the shipped demo's decisions (286 steps, all decided)
     # The phases add up to the total (rounding aside) and each took some time.
     phases = row["states_s"] + row["train_s"] + row["segment_s"] + row["options_s"]
     assert 0 < phases <= row["total_s"] + 1e-6

@@ -264,7 +264,7 @@ def test_a_fair_sweep_tunes_then_runs_the_diagnosis_and_reports_it(tmp_path):
             assert "|learning_rate|0.0007|" in table  # the smoke grid's learning rate
             assert "|anneal_lr|True|" in table or "|anneal_lr|False|" in table
             tuned += 1
-    assert tuned == 2 * 6  # every main run of the 6 arms on 2 seeds learned as tuned
+    assert tuned == 2 * 7  # every main run of the 7 arms on 2 seeds learned as tuned
     proc = user("routine-gym", "experiment", "report", out, cwd=tmp_path, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     report = (out / "report" / "report.md").read_text()

@@ -86,7 +86,7 @@ def test_a_shipped_demo_round_trips_through_minari(path, dataset_id, minari_root
 def test_the_scripts_loader_reads_minari_and_checks_the_env(minari_root):
     export_minari(Demo.load(BREAKOUT), "breakout-v0")
     demo, path = load_demo("MinAtar/Breakout-v1", "minari:breakout-v0")
-    assert path == "minari:breakout-v0" and len(demo) == 154
+    assert path == "minari:breakout-v0" and len(demo) == 286  # the shipped demo's steps
     with pytest.raises(UsageError, match="recorded on MinAtar/Breakout-v1, not MinAtar/Freeway"):
         load_demo("MinAtar/Freeway-v1", "minari:breakout-v0")
     with pytest.raises(FileNotFoundError, match="--demo minari:nothing-v0: no Minari dataset"):
@@ -223,7 +223,7 @@ def test_export_then_mine_and_train_from_minari_as_a_user(tmp_path):
     datasets = tmp_path / "datasets"
     out = ok(user("routine-gym", "export", BREAKOUT, "--minari", "me/breakout-v0",
                   cwd=tmp_path, minari_path=datasets))
-    assert "154 steps: 154 decided, 0 injected" in out
+    assert "286 steps: 286 decided, 0 injected" in out
     assert (datasets / "me" / "breakout-v0" / "data" / "metadata.json").is_file()
 
     ok(user("routine-gym", "mine", "minari:me/breakout-v0", "--out", "from_minari.json",
