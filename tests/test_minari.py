@@ -136,7 +136,7 @@ def test_a_malformed_decisions_mask_is_refused(minari_root):
     demo = Demo.load(BREAKOUT)
     _stock_dataset("bad-mask-v0", demo, infos={"decision": [1] * (len(demo) + 1)})
     with pytest.raises(UsageError, match=r"minari:bad-mask-v0: episode 0's infos\['decision'\] "
-                                         r"is int64 of shape \(155,\)"):
+                                         r"is int64 of shape \(287,\)"):
         read_demo("minari:bad-mask-v0")
 
 
