@@ -134,12 +134,18 @@ def _draw(w: Writer, found: dict[tuple[str, str], dict]) -> None:
                     ax.bar(x, np.mean(scores), width, color=colours[i % len(colours)],
                            edgecolor="black" if chosen else "none",
                            linewidth=1.5 if chosen else 0,
-                           label=f"lr {lr:g}, {'annealed' if anneal else 'constant'}"
-                           if gi == 0 else None)
+                           label=f"lr {lr:g}, {'annealed' if anneal else 'constant'}")
                     ax.scatter([x] * len(scores), scores, color="black", s=6, zorder=3)
         ax.set_xticks(range(len(games)), [labels[g] for g in games])
+        ax.set_xlim(-0.5, len(games) - 0.5)  # the same slots in every panel
         ax.set_ylabel(f"{method}\nfinal score")
-    axes[0].legend(fontsize=7, ncols=3, loc="upper left")
+    legend = {}  # every grid point once, from whichever panel drew it
+    for ax in axes:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            legend.setdefault(label, handle)
+    if legend:
+        fig.legend(list(legend.values()), list(legend), fontsize=8, ncols=3,
+                   loc="outside lower center")
     fig.suptitle("Tuning: each grid point's mean final score over the tuning seeds (dots: the "
                  "seeds; outlined: the choice)", fontsize=10)
     w.png(fig, FILE)
