@@ -847,4 +847,8 @@ def main() -> int:
 
 
 if __name__ == "__main__":
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from common import children_die_with_me  # no orphan commands after a SIGTERM
+
+    children_die_with_me()
     sys.exit(main())
