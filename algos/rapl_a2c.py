@@ -47,6 +47,12 @@ import routine_gym
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_primitive_env, make_vector_env
 from routine_gym.errors import UsageError
+from routine_gym.intra_routine import (
+    first_action_logits,
+    inner_actions,
+    intra_routine_loss,
+    routine_table,
+)
 from routine_gym.networks import (
     ObservationEncoder,
     categorical_policy,
@@ -177,6 +183,15 @@ class Args:
     max_routine_length: int = 64
     """ignore routine candidates longer than this (the wrapper pads every step to the longest)"""
 
+    # Beyond the paper (issue 49, `routine_gym.intra_routine`); off by default
+    intra_coef: float = 0.0
+    """λ_intra: every state inside a routine also trains the policy toward the action the
+    routine took there (an off-policy term weighted by min(1, π(a|s)) and the step's primitive
+    advantage); 0: off (the paper). RAPL only"""
+    routine_logit: Literal["free", "first-action"] = "free"
+    """a routine's logit: the actor's own output (the paper), or its first primitive's logit
+    plus that output (a learned offset), so a routine is chosen with its first action"""
+
     # The authors' released code (SPEC §5b); the defaults follow the paper
     routine_discount: Literal["paper", "authors"] = "paper"
     """RAPL: a routine decision's discount, γ^ℓ (paper) or γ^(ℓ−1) (authors' code)"""
@@ -247,13 +262,27 @@ class Agent(nn.Module):
     """
 
     def __init__(self, env_id: str, obs_space: gym.spaces.Box, num_actions: int,
-                 keep_graph: bool = False) -> None:
+                 keep_graph: bool = False, first_actions: list[int] | None = None) -> None:
         super().__init__()
         self.encoder = ObservationEncoder(env_id, obs_space.shape, obs_space.dtype)
         self.actor = layer_init(nn.Linear(self.encoder.num_features, num_actions), std=0.01)
         self.critic = layer_init(nn.Linear(self.encoder.num_features, 1), std=1.0)
         self.keep_graph = keep_graph
         self._acting: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []
+        # --routine-logit first-action: routine k's logit is its first primitive's plus the
+        # actor's output (`first_action_logits`); None: the actor's output (the paper).
+        if first_actions is None:
+            self.first_actions = None
+        else:
+            self.register_buffer("first_actions", torch.as_tensor(first_actions),
+                                 persistent=False)
+        self.num_primitives = num_actions - len(first_actions or ())
+
+    def logits(self, hidden: torch.Tensor) -> torch.Tensor:
+        """The policy's logits over the primitives and the routines."""
+        if self.first_actions is None:
+            return self.actor(hidden)
+        return first_action_logits(self.actor(hidden), self.first_actions, self.num_primitives)
 
     def get_value(self, obs: torch.Tensor) -> torch.Tensor:
         return self.critic(self.encoder(obs)).squeeze(-1)
@@ -262,20 +291,27 @@ class Agent(nn.Module):
         # A categorical policy: `Categorical(logits=...)`'s numbers and draws, computed without
         # building the distribution object (`routine_gym.networks`), on the hot path.
         hidden = self.encoder(obs)
-        action, logprob, entropy = categorical_policy(self.actor(hidden), action)
+        action, logprob, entropy = categorical_policy(self.logits(hidden), action)
         return action, logprob, entropy, self.critic(hidden).squeeze(-1)
 
     def act(self, obs: torch.Tensor) -> torch.Tensor:
         """Sample actions (the same draws as `get_action_and_value`, nothing else computed)."""
-        return sample_categorical(self.actor(self.encoder(obs)))
+        return sample_categorical(self.logits(self.encoder(obs)))
 
     def evaluate(self, obs: torch.Tensor, action: torch.Tensor):
         """One pass over a rollout: log-probabilities and entropies of the `len(action)` first
         states' actions, and the values of all `len(obs)` states (the rest: bootstraps)."""
         hidden = self.encoder(obs)
-        _, logprob, entropy = categorical_policy(self.actor(hidden[: len(action)]),
+        _, logprob, entropy = categorical_policy(self.logits(hidden[: len(action)]),
                                                            action)
         return logprob, entropy, self.critic(hidden).squeeze(-1)
+
+    def inner_pass(self, obs: torch.Tensor, action: torch.Tensor):
+        """Values of states inside routines and the log-probabilities of the actions the
+        routines took there (--intra-coef), in one pass."""
+        hidden = self.encoder(obs)
+        _, logprob, _ = categorical_policy(self.logits(hidden), action)
+        return self.critic(hidden).squeeze(-1), logprob
 
     def decide(self, obs: torch.Tensor) -> torch.Tensor:
         """The actions of one acting step; with `keep_graph`, the pass's log-probabilities,
@@ -360,6 +396,12 @@ def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
             ("rollout_unit", args.rollout_unit == "decisions" or args.budget_unit == "steps",
              "decisions with --budget-unit decisions (steps sizes rollouts in primitive steps)"),
             ("prim_coef", rapl_only or args.prim_coef == 1.0, "1.0 unless --mode rapl"),
+            ("intra_coef", rapl_only or args.intra_coef == 0.0, "0 unless --mode rapl (only "
+             "RAPL records the states inside routines)"),
+            ("intra_coef", args.intra_coef == 0.0 or args.prim_states == "inside",
+             "0 with --prim-states first-n (it trains at the states inside routines)"),
+            ("routine_logit", args.mode != "a2c" or args.routine_logit == "free",
+             "free with --mode a2c (it has no routines)"),
             # A routine flag a run would not read: every one with --mode a2c, the mining
             # flags and --demo with --routine-library.
             *unused_routine_flags(args, "--mode a2c" if args.mode == "a2c" else None)]
@@ -397,15 +439,18 @@ def make_envs(run, args: Args, library):
     return envs
 
 
-def make_agent(args: Args, envs, device: torch.device):
-    """The agent, with `--update-forward`'s choice, and its RMSprop optimizer."""
+def make_agent(args: Args, envs, device: torch.device, library):
+    """The agent, with `--update-forward`'s and `--routine-logit`'s choices, and its RMSprop
+    optimizer."""
     # --update-forward auto: the acting passes' graphs for the large CNNs (a second pass over
     # the rollout would cost about a fifth of their time), one batched pass for the others.
     keep_graph = args.update_forward == "acting" or (
         args.update_forward == "auto"
         and profile_for(args.env_id).network in ("nature_cnn", "impala_cnn"))
+    first_actions = ([routine[0] for routine in library]
+                     if args.routine_logit == "first-action" else None)
     agent = Agent(args.env_id, envs.single_observation_space, int(envs.single_action_space.n),
-                  keep_graph=keep_graph).to(device)
+                  keep_graph=keep_graph, first_actions=first_actions).to(device)
     # foreach: one kernel per step for all tensors instead of a loop (same arithmetic)
     optimizer = torch.optim.RMSprop(agent.parameters(), lr=args.learning_rate,
                                     alpha=args.rmsprop_alpha, eps=args.rmsprop_eps, foreach=True)
@@ -484,11 +529,15 @@ def decision_rewards(args: Args, rews: np.ndarray, lens: np.ndarray, acts: np.nd
     return rewards, discounts
 
 
-def primitive_value_loss(agent: Agent, args: Args, rollout: Rollout, d: int, next_obs,
-                         bootstrap: np.ndarray, max_len: int, device: torch.device):
+def inner_state_losses(agent: Agent, args: Args, rollout: Rollout, d: int, next_obs,
+                       bootstrap: np.ndarray, max_len: int, device: torch.device,
+                       routines: np.ndarray | None, num_primitives: int):
     """RAPL's critic loss at primitive states, ‖A_prim‖² (0 elsewhere): at every state inside
     a routine (step j ≥ 1 of a decision), on the return to the rollout's end (the paper), or
-    at the first N primitive steps of each env's rollout, N-step TD (the authors' code)."""
+    at the first N primitive steps of each env's rollout, N-step TD (the authors' code); and
+    with --intra-coef, L_intra at the states inside routines toward the actions the routines
+    (`routines`, their `routine_table`) took there (`intra_routine_loss`; 0 otherwise)."""
+    zero = torch.zeros((), device=device)
     n, e = args.num_steps, args.num_envs
     obs_shape = rollout.obs.shape[2:]
     lens, finals = rollout.lengths[:d], rollout.final_values[:d]
@@ -506,7 +555,7 @@ def primitive_value_loss(agent: Agent, args: Args, rollout: Rollout, d: int, nex
                                  rollout.truncated, rollout.final_values, where, inside,
                                  state_values[n].detach().cpu().numpy(), args.gamma)
         targets = torch.as_tensor(targets, dtype=torch.float32, device=device)
-        return (targets - state_values[:n]).pow(2).mean()
+        return (targets - state_values[:n]).pow(2).mean(), zero
     if args.mode == "rapl" and max_len > 1:
         prim = primitive_returns(rollout.step_rewards[:d], lens, rollout.terminated[:d],
                                  rollout.truncated[:d], finals, bootstrap, args.gamma)
@@ -514,8 +563,13 @@ def primitive_value_loss(agent: Agent, args: Args, rollout: Rollout, d: int, nex
         if len(prim_targets):
             states = torch.as_tensor(inner_states, device=device)
             targets = torch.as_tensor(prim_targets, dtype=torch.float32, device=device)
-            return (targets - agent.get_value(states)).pow(2).mean()
-    return torch.zeros((), device=device)
+            if routines is None:
+                return (targets - agent.get_value(states)).pow(2).mean(), zero
+            taken = inner_actions(rollout.actions[:d], lens, routines, num_primitives)
+            values, logprobs = agent.inner_pass(states, torch.as_tensor(taken, device=device))
+            advantages = targets - values  # A_prim
+            return advantages.pow(2).mean(), intra_routine_loss(logprobs, advantages)
+    return zero, zero
 
 
 def evaluate_agent(run, agent: Agent, args: Args, demo, library, device: torch.device,
@@ -542,13 +596,14 @@ def main(args: Args) -> None:
         level_env_kwargs(args, levels)  # refused now, not after training
     demo, library = load_routines(run, args)
     envs = make_envs(run, args, library)
-    agent, optimizer = make_agent(args, envs, device)
+    agent, optimizer = make_agent(args, envs, device, library)
     num_routines = len(library) if library is not None else 0
     num_primitives = int(envs.single_action_space.n) - num_routines
     max_len = max(library.lengths) if library is not None else 1
     n, e = args.num_steps, args.num_envs
     rollout = allocate_rollout(envs.single_observation_space, n, e, max_len, args.gamma)
     steps_sized = args.rollout_unit == "steps" and args.mode != "a2c"  # A2C: the same rollout
+    routines = routine_table(library.routines) if args.intra_coef else None
 
     # What a checkpoint holds; a resumed run starts where its checkpoint left off.
     # --budget-unit decisions: the budget, the schedule and --checkpoint-every count decisions.
@@ -604,10 +659,12 @@ def main(args: Args) -> None:
         pg_loss = -(logprobs.view(d, e) * advantages.detach()).mean()
         v_loss = advantages.pow(2).mean()
         entropy_loss = entropies.view(d, e).mean()
-        prim_loss = primitive_value_loss(agent, args, rollout, d, next_obs, bootstrap, max_len,
-                                         device)
+        prim_loss, intra_loss = inner_state_losses(agent, args, rollout, d, next_obs, bootstrap,
+                                                   max_len, device, routines, num_primitives)
         loss = pg_loss - args.ent_coef * entropy_loss \
             + args.vf_coef * critic_loss(v_loss, prim_loss, args.critic_loss, args.prim_coef)
+        if args.intra_coef:
+            loss = loss + args.intra_coef * intra_loss
 
         optimizer.zero_grad()
         loss.backward()
@@ -619,7 +676,8 @@ def main(args: Args) -> None:
 
         log.update(global_step, decisions, iteration, optimizer.param_groups[0]["lr"], {
             "losses/value_loss": v_loss, "losses/prim_value_loss": prim_loss,
-            "losses/policy_loss": pg_loss, "losses/entropy": entropy_loss})
+            "losses/policy_loss": pg_loss, "losses/entropy": entropy_loss,
+            **({"losses/intra_loss": intra_loss} if args.intra_coef else {})})
         run.checkpoint_if_due(global_step=global_step, iteration=iteration, decisions=decisions)
 
     envs.close()

@@ -92,6 +92,7 @@ DOMAINS: dict[str, tuple[Callable[[Any], bool], str | Callable[[Any], str]]] = {
     "ent_coef": _AT_LEAST_0,
     "vf_coef": _AT_LEAST_0,
     "prim_coef": _AT_LEAST_0,
+    "intra_coef": _AT_LEAST_0,
     "max_grad_norm": _POSITIVE,
     "rmsprop_alpha": (lambda v: 0 <= v < 1, "in [0, 1)"),
     "rmsprop_eps": _POSITIVE,
