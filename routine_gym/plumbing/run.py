@@ -30,7 +30,6 @@ import io
 import json
 import os
 import sys
-import time
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass
 from typing import Any
@@ -38,7 +37,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from routine_gym.atomic import atomic_write_bytes, check_folder, check_writable
+from routine_gym.atomic import atomic_write_bytes, check_writable
 from routine_gym.errors import UsageError
 from routine_gym.plumbing.arguments import ExtraChecks, check_args, given_flags, parse_args
 from routine_gym.plumbing.checkpoint import CHECKPOINT_NAME, resume_settings, write_checkpoint
@@ -57,6 +56,12 @@ from routine_gym.plumbing.env_setup import (
 )
 from routine_gym.plumbing.folder_lock import LOCK_FILE, hold_folder
 from routine_gym.plumbing.rng import rng_state, seed_and_tune, set_rng_state
+from routine_gym.plumbing.run_folder import (
+    check_demo_source,
+    check_tracking_now,
+    new_run_folder,
+    remove_failed_run,
+)
 from routine_gym.plumbing.seeds import demo_seed, eval_seed, stride_checks
 
 __all__ = [
@@ -109,7 +114,7 @@ def run_script(main: Callable[[Any], Any], args_type: type,
         raise SystemExit(EXIT_CODE) from None
     except expected_errors() as exc:
         for run in _NEW_RUNS:
-            _remove_failed_run(run)
+            remove_failed_run(run)
         _end_tracking(exit_code=2)  # before the error line, which a log's last line should be
         if debug:
             raise
@@ -121,7 +126,7 @@ def run_script(main: Callable[[Any], Any], args_type: type,
             raise
         for run in _NEW_RUNS:  # a new run that wrote nothing but its first events
             with contextlib.suppress(OSError):
-                _remove_failed_run(run)
+                remove_failed_run(run)
         with contextlib.suppress(OSError):
             _end_tracking(exit_code=DISK_FULL_EXIT)
         print(f"{script}: error: {line}", file=sys.stderr)
@@ -468,7 +473,7 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
                              f"({exc})") from None
         name = os.path.basename(path)
         check_env(args.env_id)
-        _check_tracking(args)
+        check_tracking_now(args)
         os.makedirs(path, exist_ok=True)
         # Before anything is written: a second process on the run (another --resume, or the
         # run itself still training) is refused, naming it.
@@ -476,11 +481,11 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
     else:
         checkpoint = None
         check_env(args.env_id)
-        _check_tracking(args)
-        _check_demo_source(args)
+        check_tracking_now(args)
+        check_demo_source(args)
         mode = getattr(args, "mode", None)
         experiment = args.exp_name if mode is None else f"{args.exp_name}-{mode}"
-        name, path = _new_run_folder(
+        name, path = new_run_folder(
             args.run_dir, f"{args.env_id.replace('/', '-')}__{experiment}__{args.seed}")
         # Held from its making, so that a --resume of it while it trains is refused.
         release = hold_folder(path, what="run", named=f"--run-dir {args.run_dir}")
@@ -530,65 +535,7 @@ _RUNS: list[Run] = []
 _TRACKED: list[Any] = []
 
 
-def _new_run_folder(run_dir: str, stem: str) -> tuple[str, str]:
-    """`{run_dir}/{stem}__{time}`, made now; a second run in the same second gets `-2`, ..."""
-    check_folder(run_dir, "--run-dir")  # a file on the way, a read-only place
-    try:
-        os.makedirs(run_dir, exist_ok=True)
-    except OSError as exc:
-        raise UsageError(f"--run-dir {run_dir}: cannot make it ({exc.strerror})") from None
-    stamp = int(time.time())
-    for k in range(1, 10_000):
-        name = f"{stem}__{stamp}" + ("" if k == 1 else f"-{k}")
-        path = os.path.join(run_dir, name)
-        try:
-            os.mkdir(path)  # atomic: two runs never get the same folder
-        except FileExistsError:
-            continue
-        except OSError as exc:
-            raise UsageError(f"--run-dir {run_dir}: cannot make a run folder there "
-                             f"({exc.strerror})") from None
-        return name, path
-    raise UsageError(f"--run-dir {run_dir}: no free run folder name for {stem}")
-
-
-def _check_demo_source(args: Any) -> None:
-    """`--demo minari:ID` that cannot be read here (no such dataset, Minari's hdf5 format
-    without h5py, ...): a one-line error before the run's folder is made."""
-    from routine_gym.demo.minari import check_minari_dataset, minari_dataset_id
-
-    dataset_id = minari_dataset_id(getattr(args, "demo", None))
-    if dataset_id is not None:
-        check_minari_dataset(dataset_id)
-
-
-def _check_tracking(args: Any) -> None:
-    """`--track` without wandb installed, with a project W&B refuses or without W&B
-    credentials (`check_tracking`): a one-line error before the run's folder is made."""
-    if getattr(args, "track", False):
-        from routine_gym.plumbing.tracking import check_tracking
-
-        check_tracking(args.wandb_project_name, args.wandb_entity)
-
-
 def _end_tracking(exit_code: int) -> None:
     """End the W&B run of a run that failed (wandb would at exit, printing after the error)."""
     for tracking in _TRACKED:
         tracking.finish(exit_code=exit_code)
-
-
-def _remove_failed_run(run: Run) -> None:
-    """Remove a new run's folder when it holds nothing but TensorBoard's first event file."""
-    run.writer.close()
-    if run.release is not None:
-        run.release()
-        run.release = None
-    path = run.path
-    if not os.path.isdir(path):
-        return
-    entries = os.listdir(path)
-    if all(e.startswith("events.out.tfevents.") or e in ("routines.json", LOCK_FILE)
-           for e in entries):
-        import shutil
-
-        shutil.rmtree(path, ignore_errors=True)
