@@ -4,14 +4,15 @@
     python bench/behaviour_snapshot.py record AFTER       # after it
     python bench/behaviour_snapshot.py compare BEFORE AFTER
 
-`record` trains every script (every mode of `rapl_a2c.py`) for a short, seeded MiniQbert run,
-and `rapl_a2c.py` (every mode) and `option_critic.py` on MinAtar/Breakout-v1 (its batched
-vector env), with one torch thread and keeps every TensorBoard scalar but the wall-clock ones
-(`charts/SPS`), each as its exact float32 bits (`--scalars-every 1` where a script has the
-flag: every update's scalars, as before it); then it copies the committed cpu sweep
-(`bench/results/experiments/cpu`), runs `routine-gym experiment report` on the copy and keeps
-its CSVs. `compare` says, per script and per CSV, whether the two are identical, and exits 1
-when one is not; tags only the second record has (a new counter) are listed, not compared.
+`record` trains every script (every mode of `rapl_a2c.py` and `rapl_ppo.py`) for a short, seeded
+MiniQbert run, and `rapl_a2c.py` (every mode), `option_critic.py` and RAPL-PPO on
+MinAtar/Breakout-v1 (its batched vector env), with one torch thread and keeps every TensorBoard
+scalar but the wall-clock ones (`charts/SPS`), each as its exact float32 bits (`--scalars-every
+1` where a script has the flag: every update's scalars, as before it); then it copies the
+committed cpu sweep (`bench/results/experiments/cpu`), runs `routine-gym experiment report` on
+the copy and keeps its CSVs. `compare` says, per script and per CSV, whether the two are
+identical, and exits 1 when one is not; tags only the second record has (a new counter) are
+listed, not compared.
 """
 
 from __future__ import annotations
@@ -59,12 +60,19 @@ RUNS = [
     ("option_critic", "option_critic", [*SCALE_1, "--num-envs", "4", "--total-timesteps", "4000"]),
     ("compile_a2c", "compile_a2c", [*SCALE_1, "--demo", DEMO, "--num-envs", "4",
                                     "--total-timesteps", "4000", "--compile-iterations", "50"]),
+    ("rapl_ppo-ppo", "rapl_ppo", ["--mode", "ppo", *SCALE_1, "--num-envs", "4",
+                                  "--total-timesteps", "4000"]),
+    ("rapl_ppo-rapl", "rapl_ppo", ["--mode", "rapl", *SCALE_1, "--num-envs", "4",
+                                   "--total-timesteps", "4000"]),
+    ("rapl_ppo-macro", "rapl_ppo", ["--mode", "macro", *SCALE_1, "--num-envs", "4",
+                                    "--total-timesteps", "4000"]),
     # MinAtar: the batched vector env (routine_gym.envs.minatar_vector) of the speed work.
     ("minatar-a2c", "rapl_a2c", [*MINATAR, "--mode", "a2c"]),
     ("minatar-rapl", "rapl_a2c", [*MINATAR, "--mode", "rapl", "--demo", MINATAR_DEMO]),
     ("minatar-macro", "rapl_a2c", [*MINATAR, "--mode", "macro", "--demo", MINATAR_DEMO]),
     ("minatar-authors", "rapl_a2c", [*MINATAR, "--authors", "--demo", MINATAR_DEMO]),
     ("minatar-option_critic", "option_critic", [*MINATAR]),
+    ("minatar-ppo-rapl", "rapl_ppo", [*MINATAR, "--mode", "rapl", "--demo", MINATAR_DEMO]),
 ]
 WALL_CLOCK = {"charts/SPS", "charts/decisions_per_second"}
 

@@ -28,16 +28,18 @@ from pathlib import Path
 from common import base_machine_info, children_die_with_me, load_average
 
 REPO = Path(__file__).resolve().parent.parent
+#: The first protocol's Breakout demo (the demo both checkouts had as their default).
+BREAKOUT_DEMO = str(REPO / "demos" / "first" / "MinAtar-Breakout-v1.npz")
 #: (name, flags): the runs timed, each from both checkouts.
 RUNS = [
     ("MinAtar Breakout a2c", ["--env-id", "MinAtar/Breakout-v1", "--mode", "a2c",
                               "--total-timesteps", "200000"]),
     ("MinAtar Breakout rapl", ["--env-id", "MinAtar/Breakout-v1", "--mode", "rapl",
                                "--total-timesteps", "200000",
-                               "--demo", str(REPO / "demos" / "first" / "MinAtar-Breakout-v1.npz")]),
+                               "--demo", BREAKOUT_DEMO]),
     ("ALE Qbert a2c", ["--env-id", "ALE/Qbert-v5", "--mode", "a2c", "--total-timesteps", "20000"]),
-    ("ALE Qbert rapl", ["--env-id", "ALE/Qbert-v5", "--mode", "rapl", "--total-timesteps", "20000",
-                        "--demo", str(REPO / "demos" / "ALE-Qbert-v5.npz")]),
+    ("ALE Qbert rapl", ["--env-id", "ALE/Qbert-v5", "--mode", "rapl", "--total-timesteps",
+                        "20000", "--demo", str(REPO / "demos" / "ALE-Qbert-v5.npz")]),
 ]
 COMMON = ["--num-envs", "16", "--torch-threads", "1", "--eval-episodes", "0",
           "--checkpoint-every", "0", "--log-every", "10000", "--seed", "1"]
