@@ -60,7 +60,7 @@ from routine_gym.networks import (
     sample_categorical,
 )
 from routine_gym.plumbing.arguments import given_flags
-from routine_gym.plumbing.counters import budget_spent
+from routine_gym.plumbing.counters import budget_spent, rollout_filled
 from routine_gym.plumbing.divergence import check_update
 from routine_gym.plumbing.loading import unused_routine_flags
 from routine_gym.plumbing.memory import check_rollout_memory
@@ -637,8 +637,8 @@ def main(args: Args) -> None:
             if "final_obs" in info:
                 log.episodes(info, global_step)
             # Rounded to the nearest vector step, and against the run's whole count, so that
-            # U updates have seen U·N·num_envs primitive steps (± half a vector step).
-            if steps_sized and global_step + ran / 2 >= iteration * n * e:
+            # U updates have seen U·N·num_envs primitive steps (about ± half a vector step).
+            if steps_sized and rollout_filled(global_step, ran, iteration, n, e):
                 break
 
         # The rollout's d decisions per env (n unless --rollout-unit steps ended it early).

@@ -7,8 +7,10 @@
 CleanRL's PPO (`ppo_atari.py`: clipped surrogate, clipped value loss, entropy bonus, minibatch
 epochs, advantage normalisation, learning-rate annealing, gradient clipping, Adam) over the
 action space `Discrete(|A| + K)` of `rapl_a2c.py`: the primitive actions plus K routines mined
-from one demonstration. A rollout holds N decisions per env; decision i at primitive time t_i
-runs a routine of executed length ℓ_i, and RAPL uses (`routine_gym.ppo`)
+from one demonstration. A rollout holds N decisions per env (`--rollout-unit steps`: the
+d ≤ N decisions that ran about N primitive steps per env, so that RAPL and MacroAction make
+PPO's updates on PPO's frames); decision i at primitive time t_i runs a routine of executed
+length ℓ_i, and RAPL uses (`routine_gym.ppo`)
 
     R_i = Σ_{τ=t_i}^{t_i+ℓ_i-1} γ^{τ-t_i} r_τ,   Γ_i = γ^{ℓ_i}                  (routine reward)
     δ_i = R_i + Γ_i V(s_{t_{i+1}}) − V(s_{t_i}),  A_i = δ_i + Γ_i λ^{ℓ_i} A_{i+1}   (SMDP GAE)
@@ -45,11 +47,12 @@ from routine_gym.plumbing.openmp import shorten_spin
 
 shorten_spin()  # before torch loads OpenMP: a shorter spin of its idle threads (see there)
 
+import dataclasses
 import json
 import os
 import warnings
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import gymnasium as gym
 import numpy as np
@@ -60,7 +63,7 @@ import routine_gym
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_primitive_env, make_vector_env
 from routine_gym.networks import ObservationEncoder, categorical_policy, layer_init
-from routine_gym.plumbing.counters import budget_spent
+from routine_gym.plumbing.counters import budget_spent, rollout_filled
 from routine_gym.plumbing.divergence import check_update
 from routine_gym.plumbing.loading import unused_routine_flags
 from routine_gym.plumbing.memory import check_rollout_memory
@@ -137,7 +140,12 @@ class Args:
     MinAtar 64, others 4)"""
     num_steps: int | None = None
     """decisions per environment per rollout, N (None: the env family's, Atari 128, Procgen
-    256, MinAtar 128, others 128)"""
+    256, MinAtar 128, others 128); with --rollout-unit steps, primitive steps"""
+    rollout_unit: Literal["decisions", "steps"] = "decisions"
+    """what --num-steps counts: decisions (the paper: a rollout holds N decisions per env, each
+    running 1 to ℓ primitive steps), or primitive steps (a rollout ends as soon as its decisions
+    ran N·num_envs primitive steps in all (to the nearest vector step, counted over the whole
+    run), so RAPL and MacroAction make as many updates as PPO on as many frames)"""
     gamma: float | None = None
     """the discount factor γ per primitive step (None: the env family's, Procgen 0.999, others
     0.99)"""
@@ -287,6 +295,8 @@ def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
             ("num_minibatches", args.num_minibatches is None or args.num_minibatches <= batch,
              f"≤ --num-envs × --num-steps ({batch})"),
             ("target_kl", args.target_kl is None or args.target_kl > 0, "> 0"),
+            ("rollout_unit", args.rollout_unit == "decisions" or args.budget_unit == "steps",
+             "decisions with --budget-unit decisions (steps sizes rollouts in primitive steps)"),
             ("prim_epochs", args.prim_epochs is None or args.update_epochs is None
              or args.prim_epochs <= args.update_epochs,
              f"≤ --update-epochs ({args.update_epochs})"),
@@ -415,6 +425,15 @@ class Rollout:
     #: of `inner_steps < lengths` (a list: their number varies).
     inner_obs: list[np.ndarray]
 
+    def first(self, d: int) -> Rollout:
+        """The rollout's first `d` decisions per env (views; `--rollout-unit steps` ends a
+        rollout before its N); the states inside routines are those the d decisions stored."""
+        return dataclasses.replace(
+            self, obs=self.obs[:d], actions=self.actions[:d], logprobs=self.logprobs[:d],
+            values=self.values[:d], step_rewards=self.step_rewards[:d],
+            lengths=self.lengths[:d], terminated=self.terminated[:d],
+            truncated=self.truncated[:d], final_values=self.final_values[:d])
+
 
 def allocate_rollout(space: gym.spaces.Box, n: int, e: int, max_len: int) -> Rollout:
     """The storage of rollouts of `n` decisions of `e` envs with routines up to `max_len` long,
@@ -491,6 +510,89 @@ def inner_targets(agent: Agent, args: Args, rollout: Rollout, returns: np.ndarra
     return len(inner_states), i_states, i_returns, i_values
 
 
+def optimise(agent: Agent, optimizer: torch.optim.Optimizer, args: Args, rollout: Rollout,
+             advantages: np.ndarray, returns: np.ndarray, inner: tuple, prim_epochs: int,
+             global_step: int, device: torch.device) -> dict[str, Any]:
+    """PPO's update on a rollout of d decisions per env (`inner`: `inner_targets`' states
+    inside routines, their λ-returns and values): --update-epochs of --num-minibatches
+    shuffled minibatches of the d·e decisions. Returns the last minibatch's losses and the
+    update's KL and clip fraction, by TensorBoard tag."""
+    num_inner, i_states, i_returns, i_values = inner
+    # Flatten the batch.
+    b_obs = torch.as_tensor(rollout.obs.reshape(-1, *rollout.obs.shape[2:]), device=device)
+    b_actions = torch.as_tensor(rollout.actions.reshape(-1), device=device)
+    b_logprobs = torch.as_tensor(rollout.logprobs.reshape(-1), device=device)
+    b_advantages = torch.as_tensor(advantages.reshape(-1), dtype=torch.float32,
+                                   device=device)
+    b_returns = torch.as_tensor(returns.reshape(-1), dtype=torch.float32, device=device)
+    b_values = torch.as_tensor(rollout.values.reshape(-1), device=device)
+
+    # Optimise the policy and the value network: epochs of shuffled minibatches; each
+    # minibatch also takes its share of the states inside routines (RAPL) that its epoch
+    # trains: each of them in --prim-epochs of the epochs, the epochs' shares dealt from
+    # shuffled decks (`inner_state_shares`).
+    b_inds = np.arange(rollout.actions.size)
+    # A rollout sized in primitive steps may hold fewer decisions than --num-minibatches
+    # (d·e of them, d = 1 at the worst): then one decision a minibatch, none empty.
+    num_minibatches = min(args.num_minibatches, len(b_inds))
+    clipfracs = []
+    prim_loss = torch.zeros((), device=device)
+    shares = inner_state_shares(num_inner, args.update_epochs, prim_epochs)
+    for _ in range(args.update_epochs):
+        np.random.shuffle(b_inds)
+        # CleanRL's consecutive slices of the shuffled indices (sizes differing by at most
+        # one where the batch does not divide), and as many slices of the epoch's share.
+        inner_parts = np.array_split(next(shares), num_minibatches)
+        for part, inner_part in zip(np.array_split(b_inds, num_minibatches),
+                                    inner_parts, strict=True):
+            mb_inds = torch.as_tensor(part, device=device)
+            mb_obs = b_obs[mb_inds]
+            mb_inner = None
+            if len(inner_part):
+                mb_inner = torch.as_tensor(inner_part, device=device)
+                mb_obs = torch.cat([mb_obs, i_states[mb_inner]])
+            newlogprob, entropy, all_values = agent.evaluate(mb_obs, b_actions[mb_inds])
+            newvalue = all_values[: len(mb_inds)]
+            logratio = newlogprob - b_logprobs[mb_inds]
+            with torch.no_grad():
+                ratio = logratio.exp()
+                old_approx_kl = (-logratio).mean()
+                approx_kl = ((ratio - 1) - logratio).mean()
+                clipfracs.append(((ratio - 1.0).abs() > args.clip_coef).float().mean().item())
+
+            mb_advantages = b_advantages[mb_inds]
+            if args.norm_adv and len(mb_inds) > 1:
+                mb_advantages = normalize_advantages(mb_advantages)
+            pg_loss = clipped_policy_loss(mb_advantages, newlogprob, b_logprobs[mb_inds],
+                                          args.clip_coef)
+            v_loss = clipped_value_loss(newvalue, b_values[mb_inds], b_returns[mb_inds],
+                                        args.clip_coef, args.clip_vloss)
+            if mb_inner is not None:
+                prim_loss = clipped_value_loss(all_values[len(mb_inds):], i_values[mb_inner],
+                                               i_returns[mb_inner], args.clip_coef,
+                                               args.clip_vloss)
+            else:
+                prim_loss = torch.zeros((), device=device)
+            entropy_loss = entropy.mean()
+            loss = pg_loss - args.ent_coef * entropy_loss \
+                + args.vf_coef * critic_loss(v_loss, prim_loss, "paper", args.prim_coef)
+
+            optimizer.zero_grad()
+            loss.backward()
+            grad_norm = nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+            check_update(global_step, loss, grad_norm, parts={
+                "value loss": v_loss, "policy loss": pg_loss,
+                "primitive value loss": prim_loss, "entropy": entropy_loss})
+            optimizer.step()
+        if args.target_kl is not None and approx_kl > args.target_kl:
+            break
+
+    return {"losses/value_loss": v_loss, "losses/prim_value_loss": prim_loss,
+            "losses/policy_loss": pg_loss, "losses/entropy": entropy_loss,
+            "losses/old_approx_kl": old_approx_kl, "losses/approx_kl": approx_kl,
+            "losses/clipfrac": np.mean(clipfracs)}
+
+
 def explained_variance(values: np.ndarray, returns: np.ndarray) -> float:
     """1 − Var(returns − values) / Var(returns) over a rollout (NaN when the returns are
     constant), CleanRL's `losses/explained_variance`."""
@@ -533,6 +635,7 @@ def main(args: Args) -> None:
                                  foreach=True)
     n, e = args.num_steps, args.num_envs
     rollout = allocate_rollout(envs.single_observation_space, n, e, max_len)
+    steps_sized = args.rollout_unit == "steps" and args.mode != "ppo"  # PPO: the same rollout
 
     # What a checkpoint holds; a resumed run starts where its checkpoint left off.
     global_step, iteration, decisions = run.resume(
@@ -564,95 +667,31 @@ def main(args: Args) -> None:
             store_step(rollout, step, args, max_len, reward, term, trunc, info)
             if trunc.any():  # bootstrap a cut episode from the value of its last observation
                 rollout.final_values[step, trunc] = cut_episode_values(agent, info, trunc, device)
-            global_step += e if args.mode == "ppo" else int(rollout.lengths[step].sum())
+            ran = e if args.mode == "ppo" else int(rollout.lengths[step].sum())
+            global_step += ran
             decisions += e
             if (term | trunc).any():
                 log.episodes(info, global_step)
-        log.rollout(rollout.actions, int(rollout.lengths.sum()))
+            if steps_sized and rollout_filled(global_step, ran, iteration, n, e):
+                break
+        # The rollout's d decisions per env (n unless --rollout-unit steps ended it early).
+        first = rollout.first(step + 1)
+        log.rollout(first.actions, int(first.lengths.sum()))
 
         # Advantages: SMDP GAE over the decisions (`decision_rewards`), and (RAPL) the
         # λ-returns of the states inside routines, with their values before the update.
         with torch.inference_mode():
             bootstrap = agent.get_value(torch.as_tensor(next_obs, device=device)).cpu().numpy()
-        rewards, discounts, traces = decision_rewards(args, rollout)
-        advantages, returns = smdp_gae(rewards, discounts, traces, rollout.values,
-                                       rollout.terminated, rollout.truncated,
-                                       rollout.final_values, bootstrap)
-        num_inner, i_states, i_returns, i_values = inner_targets(agent, args, rollout, returns,
-                                                                 bootstrap, device)
+        rewards, discounts, traces = decision_rewards(args, first)
+        advantages, returns = smdp_gae(rewards, discounts, traces, first.values,
+                                       first.terminated, first.truncated,
+                                       first.final_values, bootstrap)
+        inner = inner_targets(agent, args, first, returns, bootstrap, device)
 
-        # Flatten the batch.
-        b_obs = torch.as_tensor(rollout.obs.reshape(-1, *rollout.obs.shape[2:]), device=device)
-        b_actions = torch.as_tensor(rollout.actions.reshape(-1), device=device)
-        b_logprobs = torch.as_tensor(rollout.logprobs.reshape(-1), device=device)
-        b_advantages = torch.as_tensor(advantages.reshape(-1), dtype=torch.float32,
-                                       device=device)
-        b_returns = torch.as_tensor(returns.reshape(-1), dtype=torch.float32, device=device)
-        b_values = torch.as_tensor(rollout.values.reshape(-1), device=device)
-
-        # Optimise the policy and the value network: epochs of shuffled minibatches; each
-        # minibatch also takes its share of the states inside routines (RAPL) that its epoch
-        # trains: each of them in --prim-epochs of the epochs, the epochs' shares dealt from
-        # shuffled decks (`inner_state_shares`).
-        b_inds = np.arange(n * e)
-        clipfracs = []
-        prim_loss = torch.zeros((), device=device)
-        shares = inner_state_shares(num_inner, args.update_epochs, prim_epochs)
-        for _ in range(args.update_epochs):
-            np.random.shuffle(b_inds)
-            # CleanRL's consecutive slices of the shuffled indices (sizes differing by at most
-            # one where the batch does not divide), and as many slices of the epoch's share.
-            inner_parts = np.array_split(next(shares), args.num_minibatches)
-            for part, inner_part in zip(np.array_split(b_inds, args.num_minibatches),
-                                        inner_parts, strict=True):
-                mb_inds = torch.as_tensor(part, device=device)
-                mb_obs = b_obs[mb_inds]
-                mb_inner = None
-                if len(inner_part):
-                    mb_inner = torch.as_tensor(inner_part, device=device)
-                    mb_obs = torch.cat([mb_obs, i_states[mb_inner]])
-                newlogprob, entropy, all_values = agent.evaluate(mb_obs, b_actions[mb_inds])
-                newvalue = all_values[: len(mb_inds)]
-                logratio = newlogprob - b_logprobs[mb_inds]
-                with torch.no_grad():
-                    ratio = logratio.exp()
-                    old_approx_kl = (-logratio).mean()
-                    approx_kl = ((ratio - 1) - logratio).mean()
-                    clipfracs.append(((ratio - 1.0).abs() > args.clip_coef).float().mean().item())
-
-                mb_advantages = b_advantages[mb_inds]
-                if args.norm_adv and len(mb_inds) > 1:
-                    mb_advantages = normalize_advantages(mb_advantages)
-                pg_loss = clipped_policy_loss(mb_advantages, newlogprob, b_logprobs[mb_inds],
-                                              args.clip_coef)
-                v_loss = clipped_value_loss(newvalue, b_values[mb_inds], b_returns[mb_inds],
-                                            args.clip_coef, args.clip_vloss)
-                if mb_inner is not None:
-                    prim_loss = clipped_value_loss(all_values[len(mb_inds):], i_values[mb_inner],
-                                                   i_returns[mb_inner], args.clip_coef,
-                                                   args.clip_vloss)
-                else:
-                    prim_loss = torch.zeros((), device=device)
-                entropy_loss = entropy.mean()
-                loss = pg_loss - args.ent_coef * entropy_loss \
-                    + args.vf_coef * critic_loss(v_loss, prim_loss, "paper", args.prim_coef)
-
-                optimizer.zero_grad()
-                loss.backward()
-                grad_norm = nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
-                check_update(global_step, loss, grad_norm, parts={
-                    "value loss": v_loss, "policy loss": pg_loss,
-                    "primitive value loss": prim_loss, "entropy": entropy_loss})
-                optimizer.step()
-            if args.target_kl is not None and approx_kl > args.target_kl:
-                break
-
+        losses = optimise(agent, optimizer, args, first, advantages, returns, inner,
+                          prim_epochs, global_step, device)
         log.update(global_step, decisions, iteration, optimizer.param_groups[0]["lr"], {
-            "losses/value_loss": v_loss, "losses/prim_value_loss": prim_loss,
-            "losses/policy_loss": pg_loss, "losses/entropy": entropy_loss,
-            "losses/old_approx_kl": old_approx_kl, "losses/approx_kl": approx_kl,
-            "losses/clipfrac": np.mean(clipfracs),
-            "losses/explained_variance": explained_variance(rollout.values, returns)})
+            **losses, "losses/explained_variance": explained_variance(first.values, returns)})
         run.checkpoint_if_due(global_step=global_step, iteration=iteration, decisions=decisions)
 
     envs.close()

@@ -25,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["COUNTER_TAGS", "Counters", "budget_progress", "budget_spent", "scalars_due"]
+__all__ = ["COUNTER_TAGS", "Counters", "budget_progress", "budget_spent", "rollout_filled",
+           "scalars_due"]
 
 #: The tags `Counters.log` writes (the per-routine shares are `counters/share_{k}`).
 COUNTER_TAGS = ("counters/decisions", "counters/updates", "counters/steps_per_decision",
@@ -60,6 +61,36 @@ def budget_spent(unit: str, global_step: int, decisions: int) -> int:
     if unit == "decisions":
         return decisions
     raise ValueError(f"unknown budget unit {unit!r} (steps or decisions)")
+
+
+def rollout_filled(global_step: int, ran: int, update: int, num_steps: int,
+                   num_envs: int) -> bool:
+    """Whether a rollout sized in primitive steps (`--rollout-unit steps`) ends after the
+    vector step that just ran `ran` primitive steps (all envs together), bringing the run's
+    count to `global_step`, in the rollout of update number `update` (from 1).
+
+    The rollout ends at the vector step nearest to the run's target `T = update · N · E`
+    (N `--num-steps`, E `--num-envs`), guessing that the next vector step would run as many
+    steps as this one (`ran`): it ends once stopping here is no further from T than going on,
+
+        T − global_step ≤ global_step + ran − T   ⟺   global_step + ran / 2 ≥ T.
+
+    The target counts the whole run, not this rollout, so a rollout that ran over leaves the
+    next one less to run: U updates have seen U·N·E primitive steps give or take about half
+    a vector step (less than one), however large U, as many as U updates of A2C or PPO,
+    whose rollouts hold N·E steps.
+
+    Example:
+        >>> # N = 5, E = 4: T = 20 for the first update. At 15 steps after a vector step of 6,
+        >>> # 15 + 3 < 20 (the next step, if of 6, ends at 21: nearer); at 16 after one of 8,
+        >>> # 16 + 4 = 20 (a tie ends it).
+        >>> rollout_filled(15, 6, 1, 5, 4), rollout_filled(16, 8, 1, 5, 4)
+        (False, True)
+        >>> # The first rollout ran over, to 22; the second (T = 40) ends at 38, 16 steps on.
+        >>> rollout_filled(34, 4, 2, 5, 4), rollout_filled(38, 4, 2, 5, 4)
+        (False, True)
+    """
+    return global_step + ran / 2 >= update * num_steps * num_envs
 
 
 def budget_progress(unit: str, global_step: int, decisions: int, total: int) -> str:
