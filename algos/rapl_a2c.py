@@ -47,6 +47,7 @@ import routine_gym
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_primitive_env, make_vector_env
 from routine_gym.errors import UsageError
+from routine_gym.interruption import PolicyStopRule, set_stop_rule
 from routine_gym.networks import (
     ObservationEncoder,
     categorical_policy,
@@ -176,6 +177,11 @@ class Args:
     routines; the ablations copy the lengths the full model then finds)"""
     max_routine_length: int = 64
     """ignore routine candidates longer than this (the wrapper pads every step to the longest)"""
+    interrupt: float | None = None
+    """stop a routine before an inner step where the policy's best action beats the routine's
+    next primitive by more than this margin in nats, log π(a*|s) − log π(next|s) > MARGIN
+    (`routine_gym.interruption`; the agent then decides again there); unset: every routine runs
+    to its end (the paper). --mode rapl or macro"""
 
     # The authors' released code (SPEC §5b); the defaults follow the paper
     routine_discount: Literal["paper", "authors"] = "paper"
@@ -360,6 +366,12 @@ def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
             ("rollout_unit", args.rollout_unit == "decisions" or args.budget_unit == "steps",
              "decisions with --budget-unit decisions (steps sizes rollouts in primitive steps)"),
             ("prim_coef", rapl_only or args.prim_coef == 1.0, "1.0 unless --mode rapl"),
+            ("interrupt", args.interrupt is None or args.interrupt >= 0, "≥ 0 (a margin in nats)"),
+            ("interrupt", args.interrupt is None or args.mode != "a2c",
+             "unset with --mode a2c (it has no routines to interrupt)"),
+            ("interrupt", args.interrupt is None or not args.async_envs,
+             "unset with --async-envs (the routines would run in subprocesses, away from the "
+             "policy that stops them)"),
             # A routine flag a run would not read: every one with --mode a2c, the mining
             # flags and --demo with --routine-library.
             *unused_routine_flags(args, "--mode a2c" if args.mode == "a2c" else None)]
@@ -395,6 +407,19 @@ def make_envs(run, args: Args, library):
                            async_envs=args.async_envs)
     assert isinstance(envs.single_action_space, gym.spaces.Discrete), "only discrete actions"
     return envs
+
+
+def interrupt_routines(args: Args, envs, agent: Agent, device: torch.device):
+    """--interrupt: the stop rule the envs ask before each inner step of a routine, on the
+    acting policy's logits (`routine_gym.interruption`); None when off."""
+    if args.interrupt is None:
+        return None
+    rule = PolicyStopRule(lambda obs: agent.actor(agent.encoder(obs)), args.interrupt, device)
+    try:
+        set_stop_rule(envs, rule)
+    except ValueError as exc:
+        raise UsageError(f"--interrupt: {exc}") from None
+    return rule
 
 
 def make_agent(args: Args, envs, device: torch.device):
@@ -543,6 +568,7 @@ def main(args: Args) -> None:
     demo, library = load_routines(run, args)
     envs = make_envs(run, args, library)
     agent, optimizer = make_agent(args, envs, device)
+    stop_rule = interrupt_routines(args, envs, agent, device)  # --interrupt (None: off)
     num_routines = len(library) if library is not None else 0
     num_primitives = int(envs.single_action_space.n) - num_routines
     max_len = max(library.lengths) if library is not None else 1
@@ -560,6 +586,7 @@ def main(args: Args) -> None:
     # replay the episodes it already saw.
     next_obs, _ = envs.reset(seed=train_seed(args.seed, args.seed_stride, global_step))
     log = TrainingLog(writer, args, num_primitives, num_routines, global_step, decisions)
+    log.counts.watch_interruptions(stop_rule)
 
     while (spent := budget_spent(args.budget_unit, global_step, decisions)) \
             < args.total_timesteps:
