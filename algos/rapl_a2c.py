@@ -47,6 +47,7 @@ import routine_gym
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_primitive_env, make_vector_env
 from routine_gym.errors import UsageError
+from routine_gym.interruption import PolicyStopRule, set_stop_rule
 from routine_gym.intra_routine import (
     first_action_logits,
     inner_actions,
@@ -182,6 +183,11 @@ class Args:
     routines; the ablations copy the lengths the full model then finds)"""
     max_routine_length: int = 64
     """ignore routine candidates longer than this (the wrapper pads every step to the longest)"""
+    interrupt: float | None = None
+    """stop a routine before an inner step where the policy's best action beats the routine's
+    next primitive by more than this margin in nats, log π(a*|s) − log π(next|s) > MARGIN
+    (`routine_gym.interruption`; the agent then decides again there); unset: every routine runs
+    to its end (the paper). --mode rapl or macro"""
 
     # Beyond the paper (issue 49, `routine_gym.intra_routine`); off by default
     intra_coef: float = 0.0
@@ -402,6 +408,12 @@ def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
              "0 with --prim-states first-n (it trains at the states inside routines)"),
             ("routine_logit", args.mode != "a2c" or args.routine_logit == "free",
              "free with --mode a2c (it has no routines)"),
+            ("interrupt", args.interrupt is None or args.interrupt >= 0, "≥ 0 (a margin in nats)"),
+            ("interrupt", args.interrupt is None or args.mode != "a2c",
+             "unset with --mode a2c (it has no routines to interrupt)"),
+            ("interrupt", args.interrupt is None or not args.async_envs,
+             "unset with --async-envs (the routines would run in subprocesses, away from the "
+             "policy that stops them)"),
             # A routine flag a run would not read: every one with --mode a2c, the mining
             # flags and --demo with --routine-library.
             *unused_routine_flags(args, "--mode a2c" if args.mode == "a2c" else None)]
@@ -437,6 +449,19 @@ def make_envs(run, args: Args, library):
                            async_envs=args.async_envs)
     assert isinstance(envs.single_action_space, gym.spaces.Discrete), "only discrete actions"
     return envs
+
+
+def interrupt_routines(args: Args, envs, agent: Agent, device: torch.device):
+    """--interrupt: the stop rule the envs ask before each inner step of a routine, on the
+    acting policy's logits (`routine_gym.interruption`); None when off."""
+    if args.interrupt is None:
+        return None
+    rule = PolicyStopRule(lambda obs: agent.logits(agent.encoder(obs)), args.interrupt, device)
+    try:
+        set_stop_rule(envs, rule)
+    except ValueError as exc:
+        raise UsageError(f"--interrupt: {exc}") from None
+    return rule
 
 
 def make_agent(args: Args, envs, device: torch.device, library):
@@ -597,6 +622,7 @@ def main(args: Args) -> None:
     demo, library = load_routines(run, args)
     envs = make_envs(run, args, library)
     agent, optimizer = make_agent(args, envs, device, library)
+    stop_rule = interrupt_routines(args, envs, agent, device)  # --interrupt (None: off)
     num_routines = len(library) if library is not None else 0
     num_primitives = int(envs.single_action_space.n) - num_routines
     max_len = max(library.lengths) if library is not None else 1
@@ -615,6 +641,7 @@ def main(args: Args) -> None:
     # replay the episodes it already saw.
     next_obs, _ = envs.reset(seed=train_seed(args.seed, args.seed_stride, global_step))
     log = TrainingLog(writer, args, num_primitives, num_routines, global_step, decisions)
+    log.counts.watch_interruptions(stop_rule)
 
     while (spent := budget_spent(args.budget_unit, global_step, decisions)) \
             < args.total_timesteps:

@@ -19,6 +19,7 @@ from gymnasium import spaces
 from gymnasium.core import ObsType
 from gymnasium.vector.utils import concatenate, create_empty_array
 
+from routine_gym.interruption import StopRule
 from routine_gym.library import RoutineLibrary, routine_name
 from routine_gym.macro_info import (
     new_step_arrays,
@@ -95,6 +96,9 @@ class RoutineActionWrapper(
         record_observations: whether `info` carries ``routine_observations``.
         library: the `RoutineLibrary` given to the constructor, or None for plain sequences.
     """
+
+    #: What may stop a routine early (`set_stop_rule`); None runs every routine in full.
+    _stop_rule: StopRule | None = None
 
     def __init__(
         self,
@@ -256,6 +260,10 @@ class RoutineActionWrapper(
                 stacked[0] = obs
             elif observations is not None:
                 observations.append(obs)
+        elif self._stop_rule is not None:
+            obs, total_reward, terminated, truncated, info, executed, interrupted = \
+                self._run_interruptible(sequences[a], start, stacked, observations)
+            self._actions_out[start : start + executed] = self._sequence_buffers[a][:executed]
         else:
             env_step = self.env.step
             rewards_out = self._rewards_out
@@ -287,7 +295,44 @@ class RoutineActionWrapper(
         write_routine_info(
             info, a - n if a >= n else -1, executed, actions_row, rewards_row, terminated_row,
             truncated_row, stacked)
+        if self._stop_rule is not None:
+            info["routine_interrupted"] = a >= n and interrupted
         return obs, total_reward, terminated, truncated, info
+
+    def set_stop_rule(self, rule: StopRule | None) -> None:
+        """Let `rule` stop a routine before each inner step j ≥ 1 (None: run routines in full).
+
+        The rule is shown the observation the routine reached (as a batch of one) and the
+        primitive it would take next (`routine_gym.interruption.StopRule`); where it says
+        stop, the routine ends with `routine_length` j, padded as at an episode's end, and
+        `info["routine_interrupted"]` (reported at every step while a rule is set) is True.
+        """
+        self._stop_rule = rule
+
+    def _run_interruptible(self, sequence: tuple[int, ...], start: int, stacked: Any,
+                           observations: list | None):
+        """Run a routine's primitives, asking the stop rule before each one after the first;
+        what `step` needs: the last step's five values, the steps executed, and whether the
+        rule stopped the routine."""
+        rule, rewards_out = self._stop_rule, self._rewards_out
+        total_reward, executed, interrupted = 0.0, 0, False
+        obs: Any = None  # the observation reached, set by the first step (never asked about)
+        for primitive in sequence:
+            if executed and rule(np.asarray(obs)[None], np.array([primitive]))[0]:
+                interrupted = True
+                break
+            obs, reward, terminated, truncated, info = self.env.step(primitive)
+            reward = float(reward)
+            total_reward += reward
+            rewards_out[start + executed] = reward
+            if stacked is not None:
+                stacked[executed] = obs
+            elif observations is not None:
+                observations.append(obs)
+            executed += 1
+            if terminated or truncated:
+                break
+        return obs, total_reward, terminated, truncated, info, executed, interrupted
 
     def _stack_structured(self, observations: list[Any]) -> Any:
         """Structured (Dict, Tuple, ...) observations stacked and zero-padded to

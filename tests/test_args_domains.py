@@ -55,7 +55,8 @@ NO_MEMORY_OR_THREADS: dict[str, str] = {
                      "reward_scale", "ent_coef", "vf_coef", "prim_coef", "max_grad_norm",
                      "rmsprop_alpha", "rmsprop_eps", "temperature", "tau", "lambda_sample",
                      "clip_coef", "gamma", "gae_lambda", "length_weight", "target_kl",
-                     "compile_prior_rate", "deliberation_cost", "option_epsilon", "term_coef"],
+                     "compile_prior_rate", "deliberation_cost", "option_epsilon", "term_coef",
+                     "interrupt"],
                     _SCALAR),
 }
 

@@ -45,6 +45,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 
 from routine_gym import _native
+from routine_gym.envs.minatar_interrupt import InterruptibleSteps
 from routine_gym.macro_info import PAD_ACTION, masked_rows, padded_actions
 
 __all__ = ["MinAtarVectorEnv"]
@@ -110,7 +111,7 @@ def _core_row(game: Any, fields: tuple[str, ...]) -> list[int]:
     return row
 
 
-class MinAtarVectorEnv(VectorEnv):
+class MinAtarVectorEnv(InterruptibleSteps, VectorEnv):
     """`num_envs` MinAtar games of `env_id` as one vector env, same-step autoreset.
 
     Example:
@@ -138,6 +139,7 @@ class MinAtarVectorEnv(VectorEnv):
         compiled: step the games in the compiled core: None uses it where the game has one (all
             five do) and `routine_gym._native.core` finds it, True requires it, False keeps the
             Python loop.
+            A stop rule (`set_stop_rule`, `routine_gym.interruption`) may end routines early.
             With the core the games' state lives in it between resets: reseed and reset them
             through this env's `reset`, not through `games[i]`.
     """
@@ -291,6 +293,8 @@ class MinAtarVectorEnv(VectorEnv):
         self._start_times[i] = time.perf_counter()
 
     def step(self, actions: np.ndarray):
+        if self._stop_rule is not None:  # routines that may stop early (`minatar_interrupt`)
+            return self._step_interruptible(actions)
         if self.compiled:
             return self._step_compiled(actions)
         actions = self._checked(actions)

@@ -12,6 +12,10 @@ advances the step counter by ℓ. Every script with temporally extended actions 
     counters/steps_per_decision   primitive steps per decision since the previous log
     counters/primitive_share      share of those decisions that chose a primitive action
     counters/share_k              share of those decisions that chose routine (option) k
+    counters/interruptions        routines stopped early so far by the run's stop rule (with one,
+                                  `--interrupt`; counted since this process started)
+    counters/interrupted_share    share of the routine decisions since the previous log that
+                                  were stopped early
 
 and `charts/episodic_length` per episode, as CleanRL does. `--budget-unit decisions` makes
 `--total-timesteps`, the learning-rate schedule and `--checkpoint-every` count decisions
@@ -130,6 +134,15 @@ class Counters:
         self.num_extended = int(num_extended)
         self._choices = np.zeros(self.num_primitives + self.num_extended, dtype=np.int64)
         self._steps = 0
+        self._stop_rule: Any = None
+        self._stops_logged = 0
+
+    def watch_interruptions(self, stop_rule: Any) -> None:
+        """Log `counters/interruptions` and `counters/interrupted_share` from `stop_rule`'s
+        count of the routines it stopped (`routine_gym.interruption.PolicyStopRule`); None:
+        nothing to log."""
+        self._stop_rule = stop_rule
+        self._stops_logged = stop_rule.interruptions if stop_rule is not None else 0
 
     def add(self, choices: np.ndarray, steps: int) -> None:
         """Count decisions (`choices`, each an index of the action space) and the primitive
@@ -175,5 +188,13 @@ class Counters:
             w.add_scalar("counters/primitive_share", window["primitive_share"], global_step)
             for k, share in enumerate(window["shares"]):
                 w.add_scalar(f"counters/share_{k}", share, global_step)
+        if self._stop_rule is not None:
+            stops = self._stop_rule.interruptions
+            w.add_scalar("counters/interruptions", stops, global_step)
+            calls = int(self._choices[self.num_primitives:].sum())
+            if calls:
+                w.add_scalar("counters/interrupted_share", (stops - self._stops_logged) / calls,
+                             global_step)
+            self._stops_logged = stops
         self._choices[:] = 0
         self._steps = 0
