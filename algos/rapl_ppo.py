@@ -62,6 +62,14 @@ import torch.nn as nn
 import routine_gym
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_primitive_env, make_vector_env
+from routine_gym.errors import UsageError
+from routine_gym.interruption import PolicyStopRule, set_stop_rule
+from routine_gym.intra_routine import (
+    first_action_logits,
+    inner_actions,
+    intra_routine_ppo_loss,
+    routine_table,
+)
 from routine_gym.networks import ObservationEncoder, categorical_policy, layer_init
 from routine_gym.plumbing.counters import budget_spent, rollout_filled
 from routine_gym.plumbing.divergence import check_update
@@ -207,6 +215,20 @@ class Args:
     selection: Literal["paper", "authors"] = "paper"
     """the routine score and pruning: f + λ·len and Levenshtein pruning (paper), or the
     authors' code's (SPEC §5b)"""
+    interrupt: float | None = None
+    """stop a routine before an inner step where the policy's best action beats the routine's
+    next primitive by more than this margin in nats, log π(a*|s) − log π(next|s) > MARGIN
+    (`routine_gym.interruption`; the agent then decides again there); unset: every routine runs
+    to its end (the paper). --mode rapl or macro"""
+
+    # Beyond the paper (issue 49, `routine_gym.intra_routine`); off by default
+    intra_coef: float = 0.0
+    """λ_intra: every state inside a routine also trains the policy toward the action the
+    routine took there (PPO's clipped surrogate with the advantage min(1, π_old(a|s)) times the
+    step's primitive advantage); 0: off (the paper). RAPL only"""
+    routine_logit: Literal["free", "first-action"] = "free"
+    """a routine's logit: the actor's own output (the paper), or its first primitive's logit
+    plus that output (a learned offset), so a routine is chosen with its first action"""
 
     # Procgen
     num_levels: int = 100
@@ -305,6 +327,16 @@ def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
             # RAPL's inner states only; 1 is what a new run of any mode is given.
             ("prim_epochs", args.mode == "rapl" or args.prim_epochs in (None, 1),
              "1 (unset) unless --mode rapl"),
+            ("intra_coef", args.mode == "rapl" or args.intra_coef == 0.0, "0 unless --mode rapl "
+             "(only RAPL records the states inside routines)"),
+            ("routine_logit", args.mode != "ppo" or args.routine_logit == "free",
+             "free with --mode ppo (it has no routines)"),
+            ("interrupt", args.interrupt is None or args.interrupt >= 0, "≥ 0 (a margin in nats)"),
+            ("interrupt", args.interrupt is None or args.mode != "ppo",
+             "unset with --mode ppo (it has no routines to interrupt)"),
+            ("interrupt", args.interrupt is None or not args.async_envs,
+             "unset with --async-envs (the routines would run in subprocesses, away from the "
+             "policy that stops them)"),
             # A routine flag a run would not read: every one with --mode ppo, the mining
             # flags and --demo with --routine-library.
             *unused_routine_flags(args, "--mode ppo" if args.mode == "ppo" else None)]
@@ -315,13 +347,29 @@ class Agent(nn.Module):
     `ppo_procgen.py` share their CNN), over two for flat observations (its `ppo.py` gives the
     actor and the critic an MLP each: on CartPole a shared one learns several times slower)."""
 
-    def __init__(self, env_id: str, obs_space: gym.spaces.Box, num_actions: int) -> None:
+    def __init__(self, env_id: str, obs_space: gym.spaces.Box, num_actions: int,
+                 first_actions: list[int] | None = None) -> None:
         super().__init__()
         self.encoder = ObservationEncoder(env_id, obs_space.shape, obs_space.dtype)
         self.critic_encoder = (ObservationEncoder(env_id, obs_space.shape, obs_space.dtype)
                                if len(obs_space.shape) == 1 else None)
         self.actor = layer_init(nn.Linear(self.encoder.num_features, num_actions), std=0.01)
         self.critic = layer_init(nn.Linear(self.encoder.num_features, 1), std=1.0)
+        # --routine-logit first-action: routine k's logit is its first primitive's plus the
+        # actor's output (`routine_gym.intra_routine.first_action_logits`).
+        if first_actions is None:
+            self.first_actions = None
+        else:
+            self.register_buffer("first_actions", torch.as_tensor(first_actions),
+                                 persistent=False)
+        self.num_primitives = num_actions - len(first_actions or ())
+
+    def logits(self, actor_hidden: torch.Tensor) -> torch.Tensor:
+        """The policy's logits over the primitives and the routines."""
+        if self.first_actions is None:
+            return self.actor(actor_hidden)
+        return first_action_logits(self.actor(actor_hidden), self.first_actions,
+                                   self.num_primitives)
 
     def features(self, obs: torch.Tensor, num_actor: int | None = None):
         """The actor's features of the first `num_actor` states (default: all) and the critic's
@@ -340,22 +388,30 @@ class Agent(nn.Module):
         # A categorical policy: `Categorical(logits=...)`'s numbers and draws, computed without
         # building the distribution object (`routine_gym.networks`), on the hot path.
         actor_hidden, critic_hidden = self.features(obs)
-        action, logprob, entropy = categorical_policy(self.actor(actor_hidden), action)
+        action, logprob, entropy = categorical_policy(self.logits(actor_hidden), action)
         return action, logprob, entropy, self.critic(critic_hidden).squeeze(-1)
 
     def act(self, obs: torch.Tensor):
         """Sampled actions, their log-probabilities and the states' values (no entropy)."""
         actor_hidden, critic_hidden = self.features(obs)
-        action, logprob, _ = categorical_policy(self.actor(actor_hidden))
+        action, logprob, _ = categorical_policy(self.logits(actor_hidden))
         return action, logprob, self.critic(critic_hidden).squeeze(-1)
 
-    def evaluate(self, obs: torch.Tensor, action: torch.Tensor):
+    def evaluate(self, obs: torch.Tensor, action: torch.Tensor,
+                 inner_action: torch.Tensor | None = None):
         """One pass over a minibatch: log-probabilities and entropies of the `len(action)`
         first states' actions, and the values of all `len(obs)` states (the rest: states
-        inside routines)."""
-        actor_hidden, critic_hidden = self.features(obs, len(action))
-        _, logprob, entropy = categorical_policy(self.actor(actor_hidden), action)
-        return logprob, entropy, self.critic(critic_hidden).squeeze(-1)
+        inside routines); with `inner_action` (--intra-coef), also the log-probabilities of
+        the actions the routines took at those states (else None)."""
+        if inner_action is None:
+            actor_hidden, critic_hidden = self.features(obs, len(action))
+            _, logprob, entropy = categorical_policy(self.logits(actor_hidden), action)
+            return logprob, entropy, self.critic(critic_hidden).squeeze(-1), None
+        actor_hidden, critic_hidden = self.features(obs)
+        logits = self.logits(actor_hidden)
+        _, logprob, entropy = categorical_policy(logits[: len(action)], action)
+        _, inner_logprob, _ = categorical_policy(logits[len(action):], inner_action)
+        return logprob, entropy, self.critic(critic_hidden).squeeze(-1), inner_logprob
 
 
 #: What a checkpoint of this script holds (`--resume` checks for each).
@@ -379,6 +435,19 @@ def values_of(agent: Agent, states: np.ndarray, device: torch.device,
         for start in range(0, len(states), chunk):
             batch = torch.as_tensor(states[start : start + chunk], device=device)
             out.append(agent.get_value(batch).cpu().numpy())
+    return np.concatenate(out) if out else np.zeros(0, dtype=np.float32)
+
+
+def logprobs_of(agent: Agent, states: np.ndarray, actions: np.ndarray, device: torch.device,
+                chunk: int = 4096) -> np.ndarray:
+    """log π(a|s) of many states' actions without a graph, in chunks (--intra-coef's π_old
+    at the states inside routines)."""
+    out = []
+    with torch.inference_mode():
+        for start in range(0, len(states), chunk):
+            batch = torch.as_tensor(states[start : start + chunk], device=device)
+            taken = torch.as_tensor(actions[start : start + chunk], device=device)
+            out.append(agent.get_action_and_value(batch, taken)[1].cpu().numpy())
     return np.concatenate(out) if out else np.zeros(0, dtype=np.float32)
 
 
@@ -494,11 +563,13 @@ def decision_rewards(args: Args, rollout: Rollout):
 
 
 def inner_targets(agent: Agent, args: Args, rollout: Rollout, returns: np.ndarray,
-                  bootstrap: np.ndarray, device: torch.device):
+                  bootstrap: np.ndarray, device: torch.device, routines: np.ndarray | None):
     """A_prim (RAPL): how many states inside routines the rollout visited, and (when any)
-    those states, their λ-returns and their values now, as tensors (else None)."""
+    those states, their λ-returns and their values now, as tensors (else None); with
+    --intra-coef (`routines`: the `routine_table`), also the actions the routines took there
+    and their log-probabilities now (else None)."""
     if not rollout.inner_obs:
-        return 0, None, None, None
+        return 0, None, None, None, None, None
     inner_states = np.concatenate(rollout.inner_obs)
     prim = inner_lambda_returns(rollout.step_rewards, rollout.lengths, rollout.terminated,
                                 rollout.truncated, rollout.final_values, rollout.values,
@@ -507,7 +578,12 @@ def inner_targets(agent: Agent, args: Args, rollout: Rollout, returns: np.ndarra
     i_states = torch.as_tensor(inner_states, device=device)
     i_returns = torch.as_tensor(prim[:, 1:][inside], dtype=torch.float32, device=device)
     i_values = torch.as_tensor(values_of(agent, inner_states, device), device=device)
-    return len(inner_states), i_states, i_returns, i_values
+    if routines is None:
+        return len(inner_states), i_states, i_returns, i_values, None, None
+    taken = inner_actions(rollout.actions, rollout.lengths, routines, agent.num_primitives)
+    i_logprobs = torch.as_tensor(logprobs_of(agent, inner_states, taken, device), device=device)
+    return (len(inner_states), i_states, i_returns, i_values,
+            torch.as_tensor(taken, device=device), i_logprobs)
 
 
 def optimise(agent: Agent, optimizer: torch.optim.Optimizer, args: Args, rollout: Rollout,
@@ -517,7 +593,7 @@ def optimise(agent: Agent, optimizer: torch.optim.Optimizer, args: Args, rollout
     inside routines, their λ-returns and values): --update-epochs of --num-minibatches
     shuffled minibatches of the d·e decisions. Returns the last minibatch's losses and the
     update's KL and clip fraction, by TensorBoard tag."""
-    num_inner, i_states, i_returns, i_values = inner
+    num_inner, i_states, i_returns, i_values, i_actions, i_logprobs = inner
     # Flatten the batch.
     b_obs = torch.as_tensor(rollout.obs.reshape(-1, *rollout.obs.shape[2:]), device=device)
     b_actions = torch.as_tensor(rollout.actions.reshape(-1), device=device)
@@ -536,7 +612,7 @@ def optimise(agent: Agent, optimizer: torch.optim.Optimizer, args: Args, rollout
     # (d·e of them, d = 1 at the worst): then one decision a minibatch, none empty.
     num_minibatches = min(args.num_minibatches, len(b_inds))
     clipfracs = []
-    prim_loss = torch.zeros((), device=device)
+    prim_loss = intra_loss = torch.zeros((), device=device)
     shares = inner_state_shares(num_inner, args.update_epochs, prim_epochs)
     for _ in range(args.update_epochs):
         np.random.shuffle(b_inds)
@@ -551,7 +627,9 @@ def optimise(agent: Agent, optimizer: torch.optim.Optimizer, args: Args, rollout
             if len(inner_part):
                 mb_inner = torch.as_tensor(inner_part, device=device)
                 mb_obs = torch.cat([mb_obs, i_states[mb_inner]])
-            newlogprob, entropy, all_values = agent.evaluate(mb_obs, b_actions[mb_inds])
+            intra = args.intra_coef > 0 and mb_inner is not None
+            newlogprob, entropy, all_values, inner_logprob = agent.evaluate(
+                mb_obs, b_actions[mb_inds], i_actions[mb_inner] if intra else None)
             newvalue = all_values[: len(mb_inds)]
             logratio = newlogprob - b_logprobs[mb_inds]
             with torch.no_grad():
@@ -576,6 +654,10 @@ def optimise(agent: Agent, optimizer: torch.optim.Optimizer, args: Args, rollout
             entropy_loss = entropy.mean()
             loss = pg_loss - args.ent_coef * entropy_loss \
                 + args.vf_coef * critic_loss(v_loss, prim_loss, "paper", args.prim_coef)
+            if intra:  # L_intra: the routines' own actions, at A_prim's advantage
+                intra_loss = intra_loss_of(args, inner_logprob, i_logprobs[mb_inner],
+                                           i_returns[mb_inner] - i_values[mb_inner])
+                loss = loss + args.intra_coef * intra_loss
 
             optimizer.zero_grad()
             loss.backward()
@@ -590,7 +672,32 @@ def optimise(agent: Agent, optimizer: torch.optim.Optimizer, args: Args, rollout
     return {"losses/value_loss": v_loss, "losses/prim_value_loss": prim_loss,
             "losses/policy_loss": pg_loss, "losses/entropy": entropy_loss,
             "losses/old_approx_kl": old_approx_kl, "losses/approx_kl": approx_kl,
-            "losses/clipfrac": np.mean(clipfracs)}
+            "losses/clipfrac": np.mean(clipfracs),
+            **({"losses/intra_loss": intra_loss} if args.intra_coef else {})}
+
+
+def intra_loss_of(args: Args, logprobs: torch.Tensor, old_logprobs: torch.Tensor,
+                  advantages: torch.Tensor) -> torch.Tensor:
+    """--intra-coef's L_intra over a minibatch's states inside routines: the clipped surrogate
+    of `intra_routine_ppo_loss` on their primitive advantages G_prim − V_old (normalised over
+    them with --norm-adv, as the decisions' are)."""
+    if args.norm_adv and len(advantages) > 1:
+        advantages = normalize_advantages(advantages)
+    return intra_routine_ppo_loss(logprobs, old_logprobs, advantages, args.clip_coef)
+
+
+def interrupt_routines(args: Args, envs, agent: Agent, device: torch.device):
+    """--interrupt: the stop rule the envs ask before each inner step of a routine, on the
+    acting policy's logits (`routine_gym.interruption`); None when off."""
+    if args.interrupt is None:
+        return None
+    rule = PolicyStopRule(lambda obs: agent.logits(agent.features(obs)[0]), args.interrupt,
+                          device)
+    try:
+        set_stop_rule(envs, rule)
+    except ValueError as exc:
+        raise UsageError(f"--interrupt: {exc}") from None
+    return rule
 
 
 def explained_variance(values: np.ndarray, returns: np.ndarray) -> float:
@@ -630,7 +737,12 @@ def main(args: Args) -> None:
     max_len = max(library.lengths) if library is not None else 1
     # None only in a run resumed from a checkpoint made before --prim-epochs: every epoch.
     prim_epochs = args.prim_epochs if args.prim_epochs is not None else args.update_epochs
-    agent = Agent(args.env_id, envs.single_observation_space, num_actions).to(device)
+    first_actions = ([routine[0] for routine in library]
+                     if args.routine_logit == "first-action" else None)
+    agent = Agent(args.env_id, envs.single_observation_space, num_actions,
+                  first_actions).to(device)
+    stop_rule = interrupt_routines(args, envs, agent, device)  # --interrupt (None: off)
+    routines = routine_table(library.routines) if args.intra_coef else None
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5,
                                  foreach=True)
     n, e = args.num_steps, args.num_envs
@@ -647,6 +759,7 @@ def main(args: Args) -> None:
     next_obs, _ = envs.reset(seed=train_seed(args.seed, args.seed_stride, global_step))
     log = TrainingLog(writer, args, num_actions - num_routines, num_routines, global_step,
                       decisions)
+    log.counts.watch_interruptions(stop_rule)
 
     while (spent := budget_spent(args.budget_unit, global_step, decisions)) \
             < args.total_timesteps:
@@ -686,7 +799,7 @@ def main(args: Args) -> None:
         advantages, returns = smdp_gae(rewards, discounts, traces, first.values,
                                        first.terminated, first.truncated,
                                        first.final_values, bootstrap)
-        inner = inner_targets(agent, args, first, returns, bootstrap, device)
+        inner = inner_targets(agent, args, first, returns, bootstrap, device, routines)
 
         losses = optimise(agent, optimizer, args, first, advantages, returns, inner,
                           prim_epochs, global_step, device)

@@ -56,7 +56,7 @@ NO_MEMORY_OR_THREADS: dict[str, str] = {
                      "rmsprop_alpha", "rmsprop_eps", "temperature", "tau", "lambda_sample",
                      "clip_coef", "gamma", "gae_lambda", "length_weight", "target_kl",
                      "compile_prior_rate", "deliberation_cost", "option_epsilon", "term_coef",
-                     "interrupt"],
+                     "interrupt", "intra_coef"],
                     _SCALAR),
 }
 

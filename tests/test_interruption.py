@@ -1,5 +1,5 @@
 """Interruption (issue 49, mechanism 3): the stop test, the executors that ask it before each
-inner step j ≥ 1, and `rapl_a2c.py --interrupt`."""
+inner step j ≥ 1, and `--interrupt` of `rapl_a2c.py` and `rapl_ppo.py`."""
 
 from __future__ import annotations
 
@@ -277,18 +277,23 @@ def test_an_async_vector_env_cannot_take_a_stop_rule():
         envs.close()
 
 
-# -- rapl_a2c.py --interrupt ---------------------------------------------------------------
+# -- rapl_a2c.py and rapl_ppo.py --interrupt ---------------------------------------------
 
-def _a2c(tmp_path, *flags, timeout=300):
-    return subprocess.run([sys.executable, A2C, "--env-id", "MinAtar/Breakout-v1",
+SCRIPTS = {"a2c": A2C, "ppo": str(REPO / "algos" / "rapl_ppo.py")}
+
+
+def _run(script, tmp_path, *flags, timeout=300):
+    return subprocess.run([sys.executable, SCRIPTS[script], "--env-id", "MinAtar/Breakout-v1",
                            "--demo", str(REPO / "demos" / "MinAtar-Breakout-v1.npz"),
                            "--run-dir", str(tmp_path / "runs"), *map(str, flags)],
                           cwd=tmp_path, capture_output=True, text=True, timeout=timeout,
                           stdin=subprocess.DEVNULL)
 
 
-def test_rapl_a2c_with_interrupt_trains_and_logs_its_interruptions(tmp_path):
-    proc = _a2c(tmp_path, "--mode", "rapl", "--interrupt", 1.0, "--num-envs", 4,
+@pytest.mark.parametrize("script, mode", [("a2c", "rapl"), ("ppo", "rapl"), ("ppo", "macro")])
+def test_interrupt_trains_and_logs_its_interruptions(tmp_path, script, mode):
+    batch = ["--num-steps", 32] if script == "ppo" else []
+    proc = _run(script, tmp_path, "--mode", mode, "--interrupt", 1.0, "--num-envs", 4, *batch,
                 "--total-timesteps", 3000, "--eval-episodes", 1, "--checkpoint-every", 0,
                 "--torch-threads", 1, "--scalars-every", 10)
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -302,11 +307,14 @@ def test_rapl_a2c_with_interrupt_trains_and_logs_its_interruptions(tmp_path):
     assert all(0 <= s <= 1 for s in shares)
 
 
-@pytest.mark.parametrize("flags,names", [
-    (("--interrupt", -1), ("--interrupt", "≥ 0", "-1")),
-    (("--interrupt", 1.0, "--mode", "a2c"), ("--interrupt", "--mode a2c")),
-    (("--interrupt", 1.0, "--async-envs"), ("--interrupt", "--async-envs")),
+@pytest.mark.parametrize("script, flags, names", [
+    ("a2c", ("--interrupt", -1), ("--interrupt", "≥ 0", "-1")),
+    ("a2c", ("--interrupt", 1.0, "--mode", "a2c"), ("--interrupt", "--mode a2c")),
+    ("a2c", ("--interrupt", 1.0, "--async-envs"), ("--interrupt", "--async-envs")),
+    ("ppo", ("--interrupt", -0.5), ("--interrupt", "≥ 0", "-0.5")),
+    ("ppo", ("--interrupt", 1.0, "--mode", "ppo"), ("--interrupt", "--mode ppo")),
+    ("ppo", ("--interrupt", 1.0, "--async-envs"), ("--interrupt", "--async-envs")),
 ])
-def test_a_bad_interrupt_is_a_one_line_error(tmp_path, flags, names):
-    proc = _a2c(tmp_path, "--total-timesteps", 100, *flags, timeout=120)
-    assert_one_line_error(proc, *names, prefix="rapl_a2c.py: error:")
+def test_a_bad_interrupt_is_a_one_line_error(tmp_path, script, flags, names):
+    proc = _run(script, tmp_path, "--total-timesteps", 20000, *flags, timeout=120)
+    assert_one_line_error(proc, *names, prefix=f"rapl_{script}.py: error:")
