@@ -22,6 +22,7 @@ from routine_gym.experiments.paper import (
     coinrun,
     curves,
     diagnosis,
+    equal_frames,
     imitation,
     rl,
     scalability,
@@ -56,6 +57,7 @@ register(coinrun.EXPERIMENT)
 register(scalability.EXPERIMENT)
 register(ablation.EXPERIMENT)
 register(diagnosis.EXPERIMENT)
+register(equal_frames.EXPERIMENT)
 
 
 def build(name: str, budget: str, seeds: Sequence[int] | None = None,

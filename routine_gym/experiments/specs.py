@@ -237,7 +237,7 @@ BUDGETS: dict[str, Budget] = {
         imitation_games=("MiniQbert-v0",), steps=1_000, coinrun_steps=160, sqil_steps=500,
         gail_steps=512, bc_steps=50, expert_steps=1_000, shipped_expert_steps=5_000,
         eval_episodes=1, scalability_k=(1, 3), scalability_lengths=(2, 4), demo_episodes=1,
-        num_envs=4, experiments=("tune", "rl", "diagnosis"), reference_episodes=100,
+        num_envs=4, experiments=("tune", "rl", "diagnosis", "equal-frames"), reference_episodes=100,
         seed_stride=1000, tune_seeds=(101,), tune_points=2),
     # The fair protocol (issue 47): the current demos (10M-step experts), every method's
     # learning rate and schedule tuned on seeds of its own (the tune experiment), 5 seeds whose
@@ -250,8 +250,8 @@ BUDGETS: dict[str, Budget] = {
         steps=1_000_000, coinrun_steps=500_000, sqil_steps=100_000, gail_steps=500_000,
         bc_steps=10_000, expert_steps=10_000_000, shipped_expert_steps=10_000_000,
         eval_episodes=30, scalability_k=(1, 3, 6), scalability_lengths=(2, 5), rl_ppo=True,
-        experiments=("tune", "rl", "diagnosis"), reference_episodes=100, seed_stride=1000,
-        tune_seeds=(101, 102)),
+        experiments=("tune", "rl", "diagnosis", "equal-frames"), reference_episodes=100,
+        seed_stride=1000, tune_seeds=(101, 102)),
     "fair-long": Budget(
         name="fair-long",
         description="the fair protocol at the paper's 10^7 agent steps: MinAtar's five games, "
@@ -260,7 +260,7 @@ BUDGETS: dict[str, Budget] = {
         steps=10_000_000, coinrun_steps=500_000, sqil_steps=100_000, gail_steps=500_000,
         bc_steps=10_000, expert_steps=10_000_000, shipped_expert_steps=10_000_000,
         eval_episodes=30, scalability_k=(1, 3, 6), scalability_lengths=(2, 5), checkpoints=10,
-        experiments=("tune", "rl"), rl_authors=True, reference_episodes=100,
+        experiments=("tune", "rl", "equal-frames"), rl_authors=True, reference_episodes=100,
         seed_stride=1000, tune_seeds=(101, 102)),
 }
 

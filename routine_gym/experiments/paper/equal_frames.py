@@ -1,0 +1,280 @@
+"""Equal frames (issue 49, beyond the paper): do routine learners that pay for their routines
+beat A2C and PPO at the same agent steps?
+
+Per family (`rapl_a2c.py`: A2C; `rapl_ppo.py`: PPO), on each rl game and seed of a budget with
+tuning (the fair protocol: its demos, seeds and tuned learning rates):
+
+- the baseline (A2C, PPO) and RAPL as published (RAPL-A2C, RAPL-PPO): the rl experiment's runs;
+- RAPL with each mechanism alone (`MECHANISMS`): rollouts sized in primitive steps (equal
+  updates at equal frames), intra-routine policy learning, interruption, a routine's logit
+  started at its first primitive's;
+- RAPL with all of them at once (`all`, declared before any run: not picked from the results,
+  which would favour it).
+
+Every RAPL arm learns with RAPL's tuned settings (its method's grid point of the tune
+experiment): the mechanisms are not tuned, so an arm that needs another learning rate is at
+a disadvantage, not an advantage. The mechanisms' own settings (`--intra-coef 1`, `--interrupt
+1`: stop where the policy prefers another action by more than one nat) are fixed here too.
+
+The report: per game, each arm's mean final score ± its standard error and, against the
+family's baseline and against RAPL as published, Welch's t-test over seeds (better / worse / no
+evidence, with Δ and p); per family the rliable IQMs and P(X > baseline) with their 95 % CIs;
+whether an arm meets the issue's goal (at or above the baseline on ≥ 3 of the 5 games and
+P(X > baseline) ≥ 0.6 with its interval above 0.5); and what each mechanism closed of RAPL's
+gap to the baseline, per game. Figures: each arm's relative performance over its baseline per
+game (`equal_frames.png`), and the A2C family's training curves over frames with its update
+clock below them (`equal_frames_curves.png`: updates made against frames, per arm).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from routine_gym.experiments.drawing import figure, game_labels
+from routine_gym.experiments.experiment import Experiment
+from routine_gym.experiments.results import RunRecord
+from routine_gym.experiments.run_counters import mean_bins
+from routine_gym.experiments.sections import aggregate, aggregate_lines, group_runs
+from routine_gym.experiments.specs import Builder
+from routine_gym.experiments.statistics import probability_of_improvement, standard_error, welch
+from routine_gym.experiments.training_curves import run_curve
+from routine_gym.experiments.writing import Writer, interval, num, pct, table
+
+FILE = "equal_frames"
+CURVES_FILE = "equal_frames_curves"
+#: Each mechanism's flags (the same on both scripts), in the report's order; `all` is every
+#: one of them at once.
+MECHANISMS: dict[str, tuple[tuple[str, object], ...]] = {
+    "equal updates": (("rollout-unit", "steps"),),
+    "intra-routine": (("intra-coef", 1.0),),
+    "interruption": (("interrupt", 1.0),),
+    "first-action logit": (("routine-logit", "first-action"),),
+}
+ALL = "all"
+#: (baseline, RAPL as published) of each family.
+FAMILIES = {"A2C": ("A2C", "RAPL-A2C"), "PPO": ("PPO", "RAPL-PPO")}
+#: The goal of issue 49: at or above the baseline on this many games, P(X > baseline) at least
+#: `GOAL_POI` with the lower end of its 95 % interval above 0.5.
+GOAL_GAMES, GOAL_POI = 3, 0.6
+PALETTE = ("#7f7f7f", "#d62728", "#ff7f0e", "#2ca02c", "#9467bd", "#17becf", "#000000")
+
+
+def arm(rapl: str, mechanism: str) -> str:
+    """An arm's label: `RAPL-A2C + intra-routine`."""
+    return f"{rapl} + {mechanism}"
+
+
+def arms(family: str) -> tuple[str, ...]:
+    """A family's arms in the report's order: the baseline, RAPL, each mechanism, all."""
+    base, rapl = FAMILIES[family]
+    return (base, rapl, *(arm(rapl, m) for m in (*MECHANISMS, ALL)))
+
+
+def mechanism_flags(mechanism: str) -> tuple[tuple[str, object], ...]:
+    """The flags of one mechanism, or of all (`ALL`)."""
+    if mechanism == ALL:
+        return tuple(flag for flags in MECHANISMS.values() for flag in flags)
+    return MECHANISMS[mechanism]
+
+
+def add_runs(b: Builder) -> None:
+    """Every arm of both families on each rl game and seed; on a budget without tuning the
+    experiment has no runs (its comparisons need the fair protocol's tuned settings)."""
+    if not b.budget.tune_seeds:
+        b.left_out.append({"experiment": "equal-frames",
+                           "why": "a budget without tuning (the fair protocol's only)"})
+        return
+    for env_id in b.budget.rl_games:
+        for seed in b.seeds():
+            b.a2c("A2C", env_id, seed)
+            b.a2c("RAPL-A2C", env_id, seed)
+            b.ppo("PPO", env_id, seed)
+            b.ppo("RAPL-PPO", env_id, seed)
+            for mechanism in (*MECHANISMS, ALL):
+                flags = mechanism_flags(mechanism)
+                b.a2c("RAPL-A2C", env_id, seed, {"mechanism": mechanism}, extra=flags)
+                b.ppo("RAPL-PPO", env_id, seed, {"mechanism": mechanism}, extra=flags)
+
+
+def label(run: RunRecord) -> str | None:
+    """The arm a run is: a baseline or RAPL without a variant, or RAPL with a mechanism."""
+    mechanism = run.variant.get("mechanism")
+    if mechanism is None:
+        return run.method if not run.variant and run.method in (
+            "A2C", "RAPL-A2C", "PPO", "RAPL-PPO") else None
+    return arm(run.method, mechanism) if run.method in ("RAPL-A2C", "RAPL-PPO") else None
+
+
+def verdict(x: Sequence[float], y: Sequence[float]) -> str:
+    """Welch's test of arm X against Y over seeds, one cell: `better (Δ +1.2, p = 0.03)`."""
+    if len(x) < 2 or len(y) < 2:
+        return "–"
+    return welch(x, y).describe()
+
+
+def gap_closed(s_arm: float, s_rapl: float, s_base: float) -> float:
+    """The share of RAPL's gap to the baseline an arm closes: (S_X − S_R)/(S_B − S_R); NaN
+    where RAPL is not below the baseline (no gap).
+
+    Example:
+        >>> gap_closed(8.0, 5.0, 11.0), gap_closed(12.0, 5.0, 11.0)
+        (0.5, 1.1666666666666667)
+        >>> math.isnan(gap_closed(8.0, 12.0, 11.0))
+        True
+    """
+    gap = s_base - s_rapl
+    return (s_arm - s_rapl) / gap if gap > 0 else math.nan
+
+
+def _scores(runs: list[RunRecord], env_id: str) -> list[float]:
+    return [r.score for r in runs if r.env_id == env_id]
+
+
+def _family_lines(w: Writer, family: str, groups: dict[str, list[RunRecord]],
+                  games: list[str]) -> list[str]:
+    base, rapl = FAMILIES[family]
+    names = [a for a in arms(family) if a in groups]
+    if base not in groups:
+        return []
+    rows, gaps, csv_rows = [], [], []
+    for a in names:
+        for g in games:
+            s = _scores(groups[a], g)
+            if not s:
+                continue
+            s_b, s_r = _scores(groups[base], g), _scores(groups.get(rapl, []), g)
+            mean = float(np.mean(s))
+            closed = gap_closed(mean, float(np.mean(s_r)), float(np.mean(s_b))) \
+                if s_r and s_b and a not in (base, rapl) else math.nan
+            rows.append((a, game_labels([g])[g], len(s), f"{num(mean)} ± {num(standard_error(s))}",
+                         verdict(s, s_b) if a != base else "",
+                         verdict(s, s_r) if a not in (base, rapl) and s_r else "",
+                         pct(closed) if math.isfinite(closed) else "–"))
+            csv_rows.append((family, a, g, len(s), mean, standard_error(s), closed))
+    agg = aggregate(w, {a: groups[a] for a in names})
+    goal_rows = []
+    for a in names[1:]:
+        if a not in agg.matrices or base not in agg.matrices:
+            continue
+        poi = probability_of_improvement(agg.matrices[a], agg.matrices[base], reps=w.reps,
+                                         seed=w.seed)
+        at_or_above = sum(1 for g in games if _scores(groups[a], g) and _scores(groups[base], g)
+                          and np.mean(_scores(groups[a], g)) >= np.mean(_scores(groups[base], g)))
+        met = at_or_above >= GOAL_GAMES and poi[0] >= GOAL_POI and poi[1] > 0.5
+        goal_rows.append((a, f"{at_or_above} of {len(games)}", interval(poi, percent=False),
+                          "**yes**" if met else "no"))
+        gaps.append(a)
+    w.csv(f"{FILE}_{family.lower()}", ("family", "arm", "env_id", "runs", "mean", "se",
+                                        "gap_closed"), csv_rows)
+    return [f"### The {family} family (`{'rapl_a2c' if family == 'A2C' else 'rapl_ppo'}.py`)",
+            "",
+            "Mean final score ± standard error over seeds; Welch's t-test over seeds against "
+            f"{base} and against {rapl} (as published); the share of {rapl}'s gap to {base} "
+            "the arm closes, (S_X − S_R)/(S_B − S_R) (– where RAPL is not below).", "",
+            *table(("arm", "game", "runs", "score", f"vs {base}", f"vs {rapl}", "gap closed"),
+                   rows),
+            *aggregate_lines(w, agg),
+            *table(("arm", "IQM [95 % CI]"),
+                   [(a, interval(agg.iqm.get(a), agg.percent)) for a in agg.iqm]),
+            f"The goal (issue 49): at or above {base} on ≥ {GOAL_GAMES} games and "
+            f"P(X > {base}) ≥ {GOAL_POI} with its 95 % interval above 0.5:", "",
+            *table(("arm", f"games ≥ {base}", f"P(X > {base}) [95 % CI]", "goal met"),
+                   goal_rows)]
+
+
+def _draw_relative(w: Writer, groups: dict[str, list[RunRecord]], games: list[str]) -> None:
+    """Per family a panel: each RAPL arm's (S_X − S_B)/|S_B| per game, in %, each arm in the
+    same colour whatever arms have runs."""
+    fig = figure(12.0, 8.0)
+    axes = fig.subplots(2, 1)
+    labels = game_labels(games)
+    for ax, family in zip(axes, FAMILIES, strict=True):
+        base = FAMILIES[family][0]
+        every = arms(family)
+        names = [a for a in every[1:] if a in groups]
+        ax.set_title(f"{family} family: each arm over {base} at equal frames", fontsize=10)
+        if not names or base not in groups:
+            ax.text(0.5, 0.5, f"no finished runs of {base} and its RAPL arms", ha="center",
+                    va="center", transform=ax.transAxes)
+            ax.set_axis_off()
+            continue
+        width = 0.8 / len(names)
+        x = np.arange(len(games))
+        for i, a in enumerate(names):
+            values = []
+            for g in games:
+                s_x, s_b = _scores(groups[a], g), _scores(groups[base], g)
+                ok = s_x and s_b and abs(np.mean(s_b)) > 1e-9
+                values.append(100 * (np.mean(s_x) - np.mean(s_b)) / abs(np.mean(s_b))
+                              if ok else np.nan)
+            ax.bar(x + (i - (len(names) - 1) / 2) * width, np.nan_to_num(values), width,
+                   color=PALETTE[every.index(a) % len(PALETTE)], label=a)
+        ax.axhline(0.0, color="black", linewidth=0.8)
+        ax.set_xticks(x, [labels[g] for g in games])
+        ax.set_ylabel(f"(S_X − S_{base}) / |S_{base}| (%)")
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    w.png(fig, FILE)
+
+
+def _draw_curves(w: Writer, groups: dict[str, list[RunRecord]], games: list[str]) -> None:
+    """The A2C family per game: mean training return over frames (top) and updates made
+    against frames (bottom), one line per arm."""
+    names = [a for a in arms("A2C") if a in groups]
+    if not names or not games:
+        return
+    fig = figure(3.2 * len(games) + 1.0, 6.5)
+    axes = np.atleast_2d(fig.subplots(2, len(games), squeeze=False))
+    labels = game_labels(games)
+    for col, g in enumerate(games):
+        top, bottom = axes[0, col], axes[1, col]
+        for a in names:
+            i = arms("A2C").index(a)
+            runs = [r for r in groups[a] if r.env_id == g]
+            curves = [c for r in runs if (c := run_curve(r, r.steps)) is not None]
+            if not curves:
+                continue
+            x = curves[0][0]
+            top.plot(x, np.nanmean([c[1] for c in curves], axis=0), label=a,
+                     color=PALETTE[i % len(PALETTE)], linewidth=1.2)
+            updates = mean_bins(runs, "updates")
+            if updates is not None and len(updates) == len(x):
+                bottom.plot(x, updates, color=PALETTE[i % len(PALETTE)], marker=".",
+                            markersize=3, linewidth=0.8)
+        top.set_title(labels[g], fontsize=10)
+        bottom.set_xlabel("agent steps (frames)")
+    axes[0, 0].set_ylabel("training return (mean over seeds)")
+    axes[1, 0].set_ylabel("updates made")
+    handles, names_drawn = axes[0, 0].get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, names_drawn, loc="outside lower center", ncols=4, fontsize=8)
+    w.png(fig, CURVES_FILE)
+
+
+def section(w: Writer, runs: list[RunRecord]) -> list[str]:
+    """Both families' tables, aggregates and goal; the two figures."""
+    groups = group_runs(runs, label)
+    games = sorted({r.env_id for rs in groups.values() for r in rs})
+    _draw_relative(w, groups, games)
+    _draw_curves(w, groups, games)
+    lines = [f"Figures: `{FILE}.png` (each arm over its baseline per game) and "
+             f"`{CURVES_FILE}.png` (the A2C family's training curves and update clocks). "
+             "Every arm at its method's tuned settings (RAPL's for the mechanisms); the "
+             "mechanisms' flags: " + "; ".join(
+                 f"{m}: `{' '.join(f'--{k} {v}' for k, v in flags)}`"
+                 for m, flags in MECHANISMS.items()) + ".", ""]
+    for family in FAMILIES:
+        lines += _family_lines(w, family, groups, games)
+    return lines
+
+
+EXPERIMENT = Experiment(
+    name="equal-frames", version=1,
+    title="Equal frames (beyond the paper): routine learners against A2C and PPO",
+    figure="beyond the paper", file=FILE, add_runs=add_runs, section=section,
+    methods=(*arms("A2C"), *arms("PPO")),
+    colours={a: PALETTE[i % len(PALETTE)] for family in FAMILIES
+             for i, a in enumerate(arms(family))},
+    extra_files=(CURVES_FILE, f"{FILE}_a2c", f"{FILE}_ppo"))

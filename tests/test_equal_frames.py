@@ -1,0 +1,107 @@
+"""The equal-frames experiment (issue 49): its arms, each RAPL arm one mechanism away from RAPL
+as published, at the fair protocol's tuned settings; its report worked out by hand."""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import pytest
+
+from routine_gym.experiments.paper import equal_frames
+from routine_gym.experiments.paper.equal_frames import (
+    ALL,
+    MECHANISMS,
+    arms,
+    gap_closed,
+    mechanism_flags,
+)
+from routine_gym.experiments.registry import build, left_out
+from routine_gym.experiments.results import RunRecord
+from routine_gym.experiments.writing import Writer
+
+FREEWAY = "MinAtar/Freeway-v1"
+
+
+def test_every_rapl_arm_is_rapl_as_published_plus_its_mechanism_alone():
+    entries = [e for e in build("equal-frames", "fair", envs=[FREEWAY])
+               if e.role == "main" and e.seed == 1]
+    by_arm = {equal_frames.label(_record(e.method, e.env_id, e.seed, 0.0, e.variant)): e
+              for e in entries}
+    assert set(by_arm) == set(arms("A2C")) | set(arms("PPO"))
+    assert len(by_arm) == 2 * (2 + len(MECHANISMS) + 1) == 14
+    for family, rapl in (("A2C", "RAPL-A2C"), ("PPO", "RAPL-PPO")):
+        published = by_arm[rapl].run
+        for mechanism in (*MECHANISMS, ALL):
+            run = by_arm[f"{rapl} + {mechanism}"].run
+            added = {k: v for k, v in run.flags if k not in dict(published.flags)}
+            assert added == dict(mechanism_flags(mechanism))
+            assert {k: v for k, v in run.flags if k not in added} == dict(published.flags)
+            # The same tuned settings as RAPL as published: the same tune runs decide them.
+            assert run.derived == published.derived
+    assert dict(mechanism_flags(ALL)) == {"rollout-unit": "steps", "intra-coef": 1.0,
+                                          "interrupt": 1.0, "routine-logit": "first-action"}
+
+
+def test_five_seeds_per_arm_and_game_at_both_fair_budgets():
+    for budget in ("fair", "fair-long"):
+        main = [e for e in build("equal-frames", budget) if e.role == "main"]
+        assert len(main) == 14 * 5 * 5  # arms × games × seeds
+        assert {e.seed for e in main} == set(range(1, 6))
+
+
+def test_a_budget_without_tuning_leaves_the_experiment_out():
+    assert build("equal-frames", "cpu") == []
+    (why,) = [item for item in left_out("equal-frames", "cpu")
+              if item.get("experiment") == "equal-frames"]
+    assert "tuning" in why["why"]
+
+
+def test_gap_closed_by_hand():
+    assert gap_closed(9.0, 6.0, 12.0) == 0.5  # RAPL 6, A2C 12: 3 of the gap of 6
+    assert gap_closed(6.0, 6.0, 12.0) == 0.0
+    assert gap_closed(3.0, 6.0, 12.0) == -0.5
+    assert math.isnan(gap_closed(9.0, 12.0, 12.0))  # no gap to close
+
+
+def _record(method, env_id, seed, score, variant=None):
+    return RunRecord(key=f"{method}{env_id}{seed}{variant}", method=method, env_id=env_id,
+                     seed=seed, variant=dict(variant or {}), role="main", steps=10,
+                     folder=Path("."), result={"eval": {"mean_return": score}})
+
+
+GAMES = ("MinAtar/Breakout-v1", "MinAtar/Freeway-v1", "MinAtar/Seaquest-v1")
+
+
+def _runs():
+    """On each of three games: A2C 10, 12, 14 (mean 12); RAPL-A2C 4, 6, 8 (mean 6); RAPL-A2C
+    + intra-routine 8, 9, 10 (mean 9); RAPL-A2C + all 20, 21, 22 (mean 21)."""
+    runs = []
+    for env_id in GAMES:
+        for seed, (a2c, rapl, intra, every) in enumerate(
+                [(10, 4, 8, 20), (12, 6, 9, 21), (14, 8, 10, 22)], start=1):
+            runs += [_record("A2C", env_id, seed, a2c), _record("RAPL-A2C", env_id, seed, rapl),
+                     _record("RAPL-A2C", env_id, seed, intra, {"mechanism": "intra-routine"}),
+                     _record("RAPL-A2C", env_id, seed, every, {"mechanism": ALL})]
+    return runs
+
+
+def test_the_report_by_hand(tmp_path):
+    w = Writer(tmp_path, references={}, reps=200, seed=0)
+    text = "\n".join(equal_frames.section(w, _runs()))
+    rows = {(r[1], r[2]): r for r in csv.reader(
+        (tmp_path / "equal_frames_a2c.csv").read_text().splitlines()[1:])}
+    intra = rows["RAPL-A2C + intra-routine", "MinAtar/Freeway-v1"]
+    assert float(intra[4]) == 9.0 and float(intra[5]) == pytest.approx(1 / 3 ** 0.5)
+    assert float(intra[6]) == pytest.approx(0.5)  # (9 − 6) / (12 − 6)
+    assert float(rows["RAPL-A2C + all", "MinAtar/Freeway-v1"][6]) == pytest.approx(2.5)
+    assert rows["RAPL-A2C", "MinAtar/Freeway-v1"][6] == ""  # RAPL closes nothing of its own gap
+    # Welch over seeds against A2C, by hand: Δ = 9 − 12, se = √(1/3 + 4/3), ν = 2.
+    assert "worse (Δ -3.00" in text or "no evidence (Δ -3.00" in text
+    goal = [line for line in text.splitlines() if line.startswith("| RAPL-A2C + ")
+            and "of 3" in line]
+    met = {line.split(" | ")[0][2:]: line.rstrip(" |").split(" | ")[-1] for line in goal}
+    assert met == {"RAPL-A2C + intra-routine": "no", "RAPL-A2C + all": "**yes**"}
+    assert "| RAPL-A2C + all | 3 of 3 | 1.00 [1.00, 1.00] | **yes** |" in text
+    assert (tmp_path / "equal_frames.png").stat().st_size > 10_000
