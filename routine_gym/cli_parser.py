@@ -201,17 +201,20 @@ def _add_play(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def _add_experiment(sub: argparse._SubParsersAction) -> dict[str, argparse.ArgumentParser]:
     """`routine-gym experiment list|run|report`: the paper's experiments."""
-    p = sub.add_parser("experiment", help="the paper's six experiments: list, run, report",
-                       description="The paper's six experiments (SPEC §8) as sweeps of runs of "
-                       "the scripts in algos/: resumable, local or on a Ray cluster.")
+    p = sub.add_parser("experiment", help="the paper's experiments and ours: list, run, report",
+                       description="The paper's six experiments (SPEC §8), the fair protocol's "
+                       "tuning, the diagnosis and equal-frames as sweeps of runs of the scripts "
+                       "in algos/: resumable, local or on a Ray cluster.")
     esub = p.add_subparsers(dest="action", required=True, metavar="ACTION")
     listing = esub.add_parser("list",
                               help="the experiments, their budgets and how many runs each has")
     q = esub.add_parser("run", help="run an experiment (finished runs are skipped, killed ones "
                         "resume)")
-    q.add_argument("name", help="imitation, rl, curves, coinrun, scalability, ablation or all")
+    q.add_argument("name", help="an experiment `experiment list` shows (tune, rl, diagnosis, "
+                   "equal-frames, ...), or all")
     q.add_argument("--budget", required=True,
-                   help="smoke, cpu, paper or long (`experiment list` describes each)")
+                   help="a budget `experiment list` shows and describes (smoke, cpu, paper, long, "
+                   "smoke-fair, fair, fair-long)")
     q.add_argument("--out", required=True, help="the sweep folder (the same one to resume)")
     q.add_argument("--jobs", type=int, default=1,
                    help="runs at a time (local), or the local Ray instance's CPUs (1)")

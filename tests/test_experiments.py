@@ -21,16 +21,18 @@ from routine_gym.experiments import report as report_mod
 from routine_gym.experiments.registry import EXPERIMENTS, build, count_runs
 from routine_gym.experiments.specs import BUDGETS, RunSpec
 
-NAMES = ["tune", "imitation", "rl", "curves", "coinrun", "scalability", "ablation", "diagnosis"]
-#: The experiments with runs at the smoke budget (tune has runs only where a budget tunes).
-SMOKE = [n for n in NAMES if n != "tune"]
+NAMES = ["tune", "imitation", "rl", "curves", "coinrun", "scalability", "ablation", "diagnosis",
+         "equal-frames"]
+#: The experiments with runs at the smoke budget (tune and equal-frames have runs only where a
+#: budget tunes).
+SMOKE = [n for n in NAMES if n not in ("tune", "equal-frames")]
 CLI = [sys.executable, "-m", "routine_gym.cli"]
 REPO = Path(__file__).resolve().parents[1]
 
 
 # -- specs ---------------------------------------------------------------------------------------
 
-def test_the_eight_experiments_and_seven_budgets():
+def test_the_nine_experiments_and_seven_budgets():
     assert list(EXPERIMENTS) == NAMES
     # long: rl alone (test_long_budget); the fair protocol's three: tests/test_fair_protocol.py
     assert list(BUDGETS) == ["smoke", "cpu", "paper", "long", "smoke-fair", "fair", "fair-long"]
