@@ -100,7 +100,6 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "interrupt.md")
     args = parser.parse_args()
-    children_die_with_me()
     demo = REPO / "demos" / f"{args.env_id.replace('/', '-')}.npz"
     configs = {"before": (args.before, None), "off": (REPO, None), "on": (REPO, args.margin)}
     results: dict[str, list[dict]] = {name: [] for name in configs}
@@ -152,4 +151,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    children_die_with_me()
     main()

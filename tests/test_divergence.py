@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from one_line import stderr_lines
 from script_loader import ALGOS
 
 from routine_gym.plumbing.divergence import (
@@ -105,7 +106,7 @@ def user(script: str, *words: str, cwd: Path) -> subprocess.CompletedProcess:
 
 
 def assert_stopped(proc: subprocess.CompletedProcess, script: str) -> str:
-    lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    lines = stderr_lines(proc.stderr)
     assert proc.returncode == EXIT_CODE == 1, (proc.returncode, proc.stderr[-3000:])
     assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr[-3000:]
     assert lines[0].startswith(f"{script}.py: error: training stopped at "), lines[0]

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from routine_gym.errors import UsageError
 from routine_gym.experiments.paper import equal_frames
 from routine_gym.experiments.paper.equal_frames import (
     ALL,
@@ -17,7 +18,7 @@ from routine_gym.experiments.paper.equal_frames import (
     gap_closed,
     mechanism_flags,
 )
-from routine_gym.experiments.registry import build, left_out
+from routine_gym.experiments.registry import available, build
 from routine_gym.experiments.results import RunRecord
 from routine_gym.experiments.writing import Writer
 
@@ -51,11 +52,10 @@ def test_five_seeds_per_arm_and_game_at_both_fair_budgets():
         assert {e.seed for e in main} == set(range(1, 6))
 
 
-def test_a_budget_without_tuning_leaves_the_experiment_out():
-    assert build("equal-frames", "cpu") == []
-    (why,) = [item for item in left_out("equal-frames", "cpu")
-              if item.get("experiment") == "equal-frames"]
-    assert "tuning" in why["why"]
+def test_a_budget_without_tuning_has_no_equal_frames_runs():
+    assert not available("equal-frames", "cpu") and available("equal-frames", "fair")
+    with pytest.raises(UsageError, match="run equal-frames at smoke-fair, fair, fair-long"):
+        build("equal-frames", "cpu")
 
 
 def test_gap_closed_by_hand():

@@ -419,7 +419,7 @@ def test_flat_observations_get_a_critic_torso_of_their_own_and_images_share_one(
     flat.get_value(torch.ones(3, 4)).sum().backward()
     assert all(p.grad is None for p in flat.encoder.parameters())
     assert all(p.grad is not None for p in flat.critic_encoder.parameters())
-    logprob, entropy, values = flat.evaluate(torch.ones(5, 4), torch.zeros(2, dtype=torch.long))
+    logprob, entropy, values, _ = flat.evaluate(torch.ones(5, 4), torch.zeros(2, dtype=torch.long))
     assert logprob.shape == entropy.shape == (2,) and values.shape == (5,)
 
     image = rapl_ppo.Agent("MinAtar/Breakout-v1",

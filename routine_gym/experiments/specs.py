@@ -182,9 +182,9 @@ class Budget:
         return max(steps // self.checkpoints, 1)
 
     def has(self, experiment: str) -> bool:
-        """Whether `experiment` has runs at this budget (the tune experiment: only where the
+        """Whether `experiment` has runs at this budget (tune and equal-frames: only where the
         budget has tuning seeds)."""
-        if experiment == "tune" and not self.tune_seeds:
+        if experiment in ("tune", "equal-frames") and not self.tune_seeds:
             return False
         return self.experiments is None or experiment in self.experiments
 
