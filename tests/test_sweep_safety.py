@@ -540,8 +540,8 @@ def test_cli_all_runs_the_experiments_that_have_the_games_asked_for(tmp_path):
         "imitation", "rl", "curves", "scalability", "ablation", "diagnosis"]
     assert sweep.plan("all", "cpu", envs=["procgen/CoinRun-v0"]) == [
         ("coinrun", ["procgen/CoinRun-v0"])]
-    assert [n for n, e in sweep.plan("all", "cpu")] == [n for n in registry.EXPERIMENTS
-                                                         if n != "tune"]  # no tuning at cpu
+    assert [n for n, e in sweep.plan("all", "cpu")] == [  # no tuning at cpu
+        n for n in registry.EXPERIMENTS if n not in ("tune", "equal-frames")]
     proc = _cli(["run", "all", "--budget", "smoke", "--out", "X", "--envs", "Pong"], tmp_path)
     _one_line_error(proc, "--envs Pong is not a game of any experiment at the smoke budget "
                           "(their games: MinAtar/Breakout-v1, MinAtar/Freeway-v1, MiniQbert-v0, "
