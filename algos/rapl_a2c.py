@@ -47,9 +47,9 @@ import routine_gym
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_primitive_env, make_vector_env
 from routine_gym.errors import UsageError
-from routine_gym.interruption import PolicyStopRule, set_stop_rule
+from routine_gym.interruption import interrupt_routines
 from routine_gym.intra_routine import (
-    first_action_logits,
+    RoutineLogits,
     inner_actions,
     intra_routine_loss,
     routine_table,
@@ -63,7 +63,7 @@ from routine_gym.networks import (
 from routine_gym.plumbing.arguments import given_flags
 from routine_gym.plumbing.counters import budget_spent, rollout_filled
 from routine_gym.plumbing.divergence import check_update
-from routine_gym.plumbing.loading import unused_routine_flags
+from routine_gym.plumbing.loading import mechanism_rules, unused_routine_flags
 from routine_gym.plumbing.memory import check_rollout_memory
 from routine_gym.plumbing.run import (
     eval_env_kwargs,
@@ -276,19 +276,12 @@ class Agent(nn.Module):
         self.keep_graph = keep_graph
         self._acting: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []
         # --routine-logit first-action: routine k's logit is its first primitive's plus the
-        # actor's output (`first_action_logits`); None: the actor's output (the paper).
-        if first_actions is None:
-            self.first_actions = None
-        else:
-            self.register_buffer("first_actions", torch.as_tensor(first_actions),
-                                 persistent=False)
-        self.num_primitives = num_actions - len(first_actions or ())
+        # actor's output (`routine_gym.intra_routine.RoutineLogits`); None: the actor's output.
+        self.routine_logits = RoutineLogits(num_actions, first_actions)
 
     def logits(self, hidden: torch.Tensor) -> torch.Tensor:
         """The policy's logits over the primitives and the routines."""
-        if self.first_actions is None:
-            return self.actor(hidden)
-        return first_action_logits(self.actor(hidden), self.first_actions, self.num_primitives)
+        return self.routine_logits(self.actor(hidden))
 
     def get_value(self, obs: torch.Tensor) -> torch.Tensor:
         return self.critic(self.encoder(obs)).squeeze(-1)
@@ -402,18 +395,9 @@ def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
             ("rollout_unit", args.rollout_unit == "decisions" or args.budget_unit == "steps",
              "decisions with --budget-unit decisions (steps sizes rollouts in primitive steps)"),
             ("prim_coef", rapl_only or args.prim_coef == 1.0, "1.0 unless --mode rapl"),
-            ("intra_coef", rapl_only or args.intra_coef == 0.0, "0 unless --mode rapl (only "
-             "RAPL records the states inside routines)"),
+            *mechanism_rules(args, "a2c"),
             ("intra_coef", args.intra_coef == 0.0 or args.prim_states == "inside",
              "0 with --prim-states first-n (it trains at the states inside routines)"),
-            ("routine_logit", args.mode != "a2c" or args.routine_logit == "free",
-             "free with --mode a2c (it has no routines)"),
-            ("interrupt", args.interrupt is None or args.interrupt >= 0, "≥ 0 (a margin in nats)"),
-            ("interrupt", args.interrupt is None or args.mode != "a2c",
-             "unset with --mode a2c (it has no routines to interrupt)"),
-            ("interrupt", args.interrupt is None or not args.async_envs,
-             "unset with --async-envs (the routines would run in subprocesses, away from the "
-             "policy that stops them)"),
             # A routine flag a run would not read: every one with --mode a2c, the mining
             # flags and --demo with --routine-library.
             *unused_routine_flags(args, "--mode a2c" if args.mode == "a2c" else None)]
@@ -449,19 +433,6 @@ def make_envs(run, args: Args, library):
                            async_envs=args.async_envs)
     assert isinstance(envs.single_action_space, gym.spaces.Discrete), "only discrete actions"
     return envs
-
-
-def interrupt_routines(args: Args, envs, agent: Agent, device: torch.device):
-    """--interrupt: the stop rule the envs ask before each inner step of a routine, on the
-    acting policy's logits (`routine_gym.interruption`); None when off."""
-    if args.interrupt is None:
-        return None
-    rule = PolicyStopRule(lambda obs: agent.logits(agent.encoder(obs)), args.interrupt, device)
-    try:
-        set_stop_rule(envs, rule)
-    except ValueError as exc:
-        raise UsageError(f"--interrupt: {exc}") from None
-    return rule
 
 
 def make_agent(args: Args, envs, device: torch.device, library):
@@ -622,7 +593,9 @@ def main(args: Args) -> None:
     demo, library = load_routines(run, args)
     envs = make_envs(run, args, library)
     agent, optimizer = make_agent(args, envs, device, library)
-    stop_rule = interrupt_routines(args, envs, agent, device)  # --interrupt (None: off)
+    # --interrupt: a stop rule on the acting policy's logits (None: off)
+    stop_rule = interrupt_routines(envs, lambda obs: agent.logits(agent.encoder(obs)),
+                                   args.interrupt, device)
     num_routines = len(library) if library is not None else 0
     num_primitives = int(envs.single_action_space.n) - num_routines
     max_len = max(library.lengths) if library is not None else 1

@@ -62,10 +62,9 @@ import torch.nn as nn
 import routine_gym
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_primitive_env, make_vector_env
-from routine_gym.errors import UsageError
-from routine_gym.interruption import PolicyStopRule, set_stop_rule
+from routine_gym.interruption import interrupt_routines
 from routine_gym.intra_routine import (
-    first_action_logits,
+    RoutineLogits,
     inner_actions,
     intra_routine_ppo_loss,
     routine_table,
@@ -73,7 +72,7 @@ from routine_gym.intra_routine import (
 from routine_gym.networks import ObservationEncoder, categorical_policy, layer_init
 from routine_gym.plumbing.counters import budget_spent, rollout_filled
 from routine_gym.plumbing.divergence import check_update
-from routine_gym.plumbing.loading import unused_routine_flags
+from routine_gym.plumbing.loading import mechanism_rules, unused_routine_flags
 from routine_gym.plumbing.memory import check_rollout_memory
 from routine_gym.plumbing.run import (
     eval_env_kwargs,
@@ -327,16 +326,7 @@ def extra_checks(args: Args) -> list[tuple[str, bool, str]]:
             # RAPL's inner states only; 1 is what a new run of any mode is given.
             ("prim_epochs", args.mode == "rapl" or args.prim_epochs in (None, 1),
              "1 (unset) unless --mode rapl"),
-            ("intra_coef", args.mode == "rapl" or args.intra_coef == 0.0, "0 unless --mode rapl "
-             "(only RAPL records the states inside routines)"),
-            ("routine_logit", args.mode != "ppo" or args.routine_logit == "free",
-             "free with --mode ppo (it has no routines)"),
-            ("interrupt", args.interrupt is None or args.interrupt >= 0, "≥ 0 (a margin in nats)"),
-            ("interrupt", args.interrupt is None or args.mode != "ppo",
-             "unset with --mode ppo (it has no routines to interrupt)"),
-            ("interrupt", args.interrupt is None or not args.async_envs,
-             "unset with --async-envs (the routines would run in subprocesses, away from the "
-             "policy that stops them)"),
+            *mechanism_rules(args, "ppo"),
             # A routine flag a run would not read: every one with --mode ppo, the mining
             # flags and --demo with --routine-library.
             *unused_routine_flags(args, "--mode ppo" if args.mode == "ppo" else None)]
@@ -356,20 +346,12 @@ class Agent(nn.Module):
         self.actor = layer_init(nn.Linear(self.encoder.num_features, num_actions), std=0.01)
         self.critic = layer_init(nn.Linear(self.encoder.num_features, 1), std=1.0)
         # --routine-logit first-action: routine k's logit is its first primitive's plus the
-        # actor's output (`routine_gym.intra_routine.first_action_logits`).
-        if first_actions is None:
-            self.first_actions = None
-        else:
-            self.register_buffer("first_actions", torch.as_tensor(first_actions),
-                                 persistent=False)
-        self.num_primitives = num_actions - len(first_actions or ())
+        # actor's output (`routine_gym.intra_routine.RoutineLogits`); None: the actor's output.
+        self.routine_logits = RoutineLogits(num_actions, first_actions)
 
     def logits(self, actor_hidden: torch.Tensor) -> torch.Tensor:
         """The policy's logits over the primitives and the routines."""
-        if self.first_actions is None:
-            return self.actor(actor_hidden)
-        return first_action_logits(self.actor(actor_hidden), self.first_actions,
-                                   self.num_primitives)
+        return self.routine_logits(self.actor(actor_hidden))
 
     def features(self, obs: torch.Tensor, num_actor: int | None = None):
         """The actor's features of the first `num_actor` states (default: all) and the critic's
@@ -428,27 +410,25 @@ def action_meanings(args: Args) -> list[str] | None:
 
 
 def values_of(agent: Agent, states: np.ndarray, device: torch.device,
-              chunk: int = 4096) -> np.ndarray:
-    """V(s) of many states without a graph, in chunks (the inner states of a long rollout)."""
-    out = []
+              actions: np.ndarray | None = None, chunk: int = 4096):
+    """V(s) of many states without a graph, in chunks (the inner states of a long rollout), and
+    with `actions` (--intra-coef's π_old) log π(a|s) of them from the same pass (else None)."""
+    values, logprobs = [], []
     with torch.inference_mode():
         for start in range(0, len(states), chunk):
             batch = torch.as_tensor(states[start : start + chunk], device=device)
-            out.append(agent.get_value(batch).cpu().numpy())
-    return np.concatenate(out) if out else np.zeros(0, dtype=np.float32)
-
-
-def logprobs_of(agent: Agent, states: np.ndarray, actions: np.ndarray, device: torch.device,
-                chunk: int = 4096) -> np.ndarray:
-    """log π(a|s) of many states' actions without a graph, in chunks (--intra-coef's π_old
-    at the states inside routines)."""
-    out = []
-    with torch.inference_mode():
-        for start in range(0, len(states), chunk):
-            batch = torch.as_tensor(states[start : start + chunk], device=device)
+            if actions is None:
+                values.append(agent.get_value(batch).cpu().numpy())
+                continue
             taken = torch.as_tensor(actions[start : start + chunk], device=device)
-            out.append(agent.get_action_and_value(batch, taken)[1].cpu().numpy())
-    return np.concatenate(out) if out else np.zeros(0, dtype=np.float32)
+            _, logprob, _, value = agent.get_action_and_value(batch, taken)
+            values.append(value.cpu().numpy())
+            logprobs.append(logprob.cpu().numpy())
+
+    def joined(parts: list[np.ndarray]) -> np.ndarray:
+        return np.concatenate(parts) if parts else np.zeros(0, dtype=np.float32)
+
+    return joined(values), (joined(logprobs) if actions is not None else None)
 
 
 def load_routines(run, args: Args):
@@ -577,13 +557,14 @@ def inner_targets(agent: Agent, args: Args, rollout: Rollout, returns: np.ndarra
     inside = rollout.inner_steps[None] < rollout.lengths[:, None, :]  # [N, L-1, E]
     i_states = torch.as_tensor(inner_states, device=device)
     i_returns = torch.as_tensor(prim[:, 1:][inside], dtype=torch.float32, device=device)
-    i_values = torch.as_tensor(values_of(agent, inner_states, device), device=device)
-    if routines is None:
+    taken = None if routines is None else inner_actions(
+        rollout.actions, rollout.lengths, routines, agent.routine_logits.num_primitives)
+    values, logprobs = values_of(agent, inner_states, device, taken)
+    i_values = torch.as_tensor(values, device=device)
+    if taken is None:
         return len(inner_states), i_states, i_returns, i_values, None, None
-    taken = inner_actions(rollout.actions, rollout.lengths, routines, agent.num_primitives)
-    i_logprobs = torch.as_tensor(logprobs_of(agent, inner_states, taken, device), device=device)
     return (len(inner_states), i_states, i_returns, i_values,
-            torch.as_tensor(taken, device=device), i_logprobs)
+            torch.as_tensor(taken, device=device), torch.as_tensor(logprobs, device=device))
 
 
 def optimise(agent: Agent, optimizer: torch.optim.Optimizer, args: Args, rollout: Rollout,
@@ -686,20 +667,6 @@ def intra_loss_of(args: Args, logprobs: torch.Tensor, old_logprobs: torch.Tensor
     return intra_routine_ppo_loss(logprobs, old_logprobs, advantages, args.clip_coef)
 
 
-def interrupt_routines(args: Args, envs, agent: Agent, device: torch.device):
-    """--interrupt: the stop rule the envs ask before each inner step of a routine, on the
-    acting policy's logits (`routine_gym.interruption`); None when off."""
-    if args.interrupt is None:
-        return None
-    rule = PolicyStopRule(lambda obs: agent.logits(agent.features(obs)[0]), args.interrupt,
-                          device)
-    try:
-        set_stop_rule(envs, rule)
-    except ValueError as exc:
-        raise UsageError(f"--interrupt: {exc}") from None
-    return rule
-
-
 def explained_variance(values: np.ndarray, returns: np.ndarray) -> float:
     """1 − Var(returns − values) / Var(returns) over a rollout (NaN when the returns are
     constant), CleanRL's `losses/explained_variance`."""
@@ -741,7 +708,9 @@ def main(args: Args) -> None:
                      if args.routine_logit == "first-action" else None)
     agent = Agent(args.env_id, envs.single_observation_space, num_actions,
                   first_actions).to(device)
-    stop_rule = interrupt_routines(args, envs, agent, device)  # --interrupt (None: off)
+    # --interrupt: a stop rule on the acting policy's logits (None: off)
+    stop_rule = interrupt_routines(envs, lambda obs: agent.logits(agent.features(obs)[0]),
+                                   args.interrupt, device)
     routines = routine_table(library.routines) if args.intra_coef else None
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5,
                                  foreach=True)

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["PolicyStopRule", "StopRule", "set_stop_rule", "should_interrupt"]
+__all__ = ["PolicyStopRule", "StopRule", "interrupt_routines", "set_stop_rule", "should_interrupt"]
 
 #: A stop rule: (observations [k, ...] of k envs inside a routine, their routines' next
 #: primitive actions [k]) -> a bool mask [k], True where the routine stops before that action.
@@ -134,3 +134,23 @@ def set_stop_rule(envs: Any, rule: StopRule | None) -> None:
                          "policy that would stop them")
     raise ValueError(f"{type(envs).__name__} has no stop rule (MinAtarVectorEnv and a "
                      "SyncVectorEnv of RoutineActionWrapper envs have one)")
+
+
+def interrupt_routines(envs: Any, logits: Callable[[Any], Any], margin: float | None,
+                       device: Any) -> PolicyStopRule | None:
+    """`--interrupt MARGIN`: give the training envs a `PolicyStopRule` on the acting policy's
+    `logits` (None when `margin` is None: every routine runs to its end).
+
+    Raises:
+        UsageError: the envs cannot ask a rule (`set_stop_rule`), named as `--interrupt`'s.
+    """
+    if margin is None:
+        return None
+    from routine_gym.errors import UsageError
+
+    rule = PolicyStopRule(logits, margin, device)
+    try:
+        set_stop_rule(envs, rule)
+    except ValueError as exc:
+        raise UsageError(f"--interrupt: {exc}") from None
+    return rule

@@ -46,6 +46,7 @@ import torch
 from routine_gym.macro_info import PAD_ACTION
 
 __all__ = [
+    "RoutineLogits",
     "first_action_logits",
     "inner_actions",
     "intra_routine_loss",
@@ -153,3 +154,28 @@ def first_action_logits(logits: torch.Tensor, first_actions: torch.Tensor,
     primitive = logits[..., :num_primitives]
     return torch.cat([primitive, logits[..., num_primitives:] + primitive[..., first_actions]],
                      dim=-1)
+
+
+class RoutineLogits(torch.nn.Module):
+    """`--routine-logit`'s reading of an actor's output over |A| + K actions: unchanged
+    (`first_actions` None, the paper) or `first_action_logits` with routine k's first
+    primitive `first_actions[k]`. No parameters and no saved state, so an agent's checkpoint
+    is the same with it.
+
+    Attributes:
+        num_primitives: |A|.
+    """
+
+    def __init__(self, num_actions: int, first_actions: Sequence[int] | None = None) -> None:
+        super().__init__()
+        if first_actions is None:
+            self.first_actions = None
+        else:
+            self.register_buffer("first_actions", torch.as_tensor(first_actions),
+                                 persistent=False)
+        self.num_primitives = num_actions - len(first_actions or ())
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        if self.first_actions is None:
+            return z
+        return first_action_logits(z, self.first_actions, self.num_primitives)

@@ -254,6 +254,23 @@ def load_routines(
     return library
 
 
+def mechanism_rules(args: Any, plain: str) -> list[tuple[str, bool, str]]:
+    """The rules (as a script's `extra_checks` gives them) of the routine mechanisms beyond the
+    paper that `rapl_a2c.py` and `rapl_ppo.py` share: `--intra-coef` for RAPL only,
+    `--routine-logit` and `--interrupt` never with the mode without routines (`plain`: a2c or
+    ppo), `--interrupt` a margin ≥ 0 and not with `--async-envs`."""
+    return [("intra_coef", args.mode == "rapl" or args.intra_coef == 0.0, "0 unless --mode rapl "
+             "(only RAPL records the states inside routines)"),
+            ("routine_logit", args.mode != plain or args.routine_logit == "free",
+             f"free with --mode {plain} (it has no routines)"),
+            ("interrupt", args.interrupt is None or args.interrupt >= 0, "≥ 0 (a margin in nats)"),
+            ("interrupt", args.interrupt is None or args.mode != plain,
+             f"unset with --mode {plain} (it has no routines to interrupt)"),
+            ("interrupt", args.interrupt is None or not args.async_envs,
+             "unset with --async-envs (the routines would run in subprocesses, away from the "
+             "policy that stops them)")]
+
+
 def unused_routine_flags(args: Any, no_routines: str | None, demo_only_mined: bool = True
                          ) -> list[tuple[str, bool, str]]:
     """The rules (as a script's `extra_checks` gives them) that refuse a routine flag the run
