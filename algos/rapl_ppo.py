@@ -557,8 +557,9 @@ def inner_targets(agent: Agent, args: Args, rollout: Rollout, returns: np.ndarra
     inside = rollout.inner_steps[None] < rollout.lengths[:, None, :]  # [N, L-1, E]
     i_states = torch.as_tensor(inner_states, device=device)
     i_returns = torch.as_tensor(prim[:, 1:][inside], dtype=torch.float32, device=device)
+    # |A|: the actor's outputs less the routines (the table's rows)
     taken = None if routines is None else inner_actions(
-        rollout.actions, rollout.lengths, routines, agent.routine_logits.num_primitives)
+        rollout.actions, rollout.lengths, routines, agent.actor.out_features - len(routines))
     values, logprobs = values_of(agent, inner_states, device, taken)
     i_values = torch.as_tensor(values, device=device)
     if taken is None:

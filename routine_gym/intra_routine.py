@@ -161,9 +161,6 @@ class RoutineLogits(torch.nn.Module):
     (`first_actions` None, the paper) or `first_action_logits` with routine k's first
     primitive `first_actions[k]`. No parameters and no saved state, so an agent's checkpoint
     is the same with it.
-
-    Attributes:
-        num_primitives: |A|.
     """
 
     def __init__(self, num_actions: int, first_actions: Sequence[int] | None = None) -> None:
@@ -173,9 +170,9 @@ class RoutineLogits(torch.nn.Module):
         else:
             self.register_buffer("first_actions", torch.as_tensor(first_actions),
                                  persistent=False)
-        self.num_primitives = num_actions - len(first_actions or ())
+        self._num_primitives = num_actions - len(first_actions or ())
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         if self.first_actions is None:
             return z
-        return first_action_logits(z, self.first_actions, self.num_primitives)
+        return first_action_logits(z, self.first_actions, self._num_primitives)
