@@ -78,13 +78,16 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=100_000)
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--scripts", nargs="+", default=list(SCRIPTS), choices=SCRIPTS)
+    parser.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS),
+                        help="the configurations to run (rapl, the reference, always runs)")
     parser.add_argument("--out", type=Path,
                         default=REPO / "bench" / "results" / "mechanisms.md")
     args = parser.parse_args()
     if args.steps < 1 or args.repeats < 1:
         parser.error("--steps and --repeats must be at least 1")
     demo = REPO / "demos" / f"{args.env_id.replace('/', '-')}.npz"
-    results = {(s, c): [] for s in args.scripts for c in CONFIGS}
+    configs = ["rapl", *(c for c in args.configs if c != "rapl")]
+    results = {(s, c): [] for s in args.scripts for c in configs}
     with tempfile.TemporaryDirectory() as run_dir:
         for round_ in range(args.repeats):
             for script, config in results:
