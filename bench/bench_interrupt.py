@@ -23,15 +23,13 @@ The load averages are taken before each run. Then the vector env's step alone (`
 from __future__ import annotations
 
 import argparse
-import re
 import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-from common import base_machine_info, children_die_with_me, load_average
+from common import base_machine_info, children_die_with_me, timed_training_run
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -47,19 +45,7 @@ def run_one(code: Path, env_id: str, demo: Path, steps: int, interrupt: float | 
                "--run-dir", run_dir]
     if interrupt is not None:
         command += ["--interrupt", str(interrupt)]
-    load = load_average()
-    start = time.perf_counter()
-    proc = subprocess.run(command, capture_output=True, text=True, cwd=run_dir,
-                          env={"PYTHONPATH": str(code), "PATH": "/usr/bin:/bin"})
-    wall = time.perf_counter() - start
-    if proc.returncode:
-        raise SystemExit(f"{' '.join(command)} failed:\n{proc.stderr[-2000:]}")
-    sps = [int(m) for m in re.findall(r"SPS\s+(\d+)", proc.stdout)]
-    use = re.findall(r"routine use\s+([\d.]+%)", proc.stdout)
-    returns = re.findall(r"return\(last 20\)\s+(\S+)", proc.stdout)
-    return {"sps": sps[-1], "wall": wall, "load": load,
-            "routine_use": use[-1] if use else "?", "return": returns[-1] if returns else "?",
-            "command": " ".join(command[1:])}
+    return {**timed_training_run(command, code, run_dir), "command": " ".join(command[1:])}
 
 
 #: The vector env's step alone (the one place `off` adds work: a test of `_stop_rule`), timed

@@ -29,15 +29,12 @@ Results: `bench/results/mechanisms.md`.
 from __future__ import annotations
 
 import argparse
-import re
 import statistics
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-from common import base_machine_info, children_die_with_me, load_average
+from common import base_machine_info, children_die_with_me, timed_training_run
 
 REPO = Path(__file__).resolve().parent.parent
 SCRIPTS = ("rapl_a2c", "rapl_ppo")
@@ -59,16 +56,7 @@ def run_one(script: str, flags: list[str], env_id: str, demo: Path, steps: int,
                "--total-timesteps", str(steps), "--eval-episodes", "0",
                "--checkpoint-every", "0", "--torch-threads", "1", "--seed", "1",
                "--run-dir", run_dir, *flags]
-    load = load_average()
-    start = time.perf_counter()
-    proc = subprocess.run(command, capture_output=True, text=True, cwd=run_dir,
-                          env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"})
-    wall = time.perf_counter() - start
-    if proc.returncode:
-        raise SystemExit(f"{' '.join(command)} failed:\n{proc.stderr[-2000:]}")
-    sps = [int(m) for m in re.findall(r"SPS\s+(\d+)", proc.stdout)]
-    use = re.findall(r"routine use\s+([\d.]+%)", proc.stdout)
-    return {"sps": sps[-1], "wall": wall, "load": load, "routine_use": use[-1] if use else "?",
+    return {**timed_training_run(command, REPO, run_dir),
             "command": " ".join(["python", *command[1:]]).replace(run_dir, "TMP")}
 
 

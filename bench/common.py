@@ -9,6 +9,7 @@ from __future__ import annotations
 import datetime as dt
 import os
 import platform
+import re
 import signal
 import subprocess
 import time
@@ -20,6 +21,26 @@ import numpy as np
 def load_average() -> str:
     """The 1-, 5- and 15-minute load averages, e.g. `2.10 1.85 1.40`."""
     return " ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
+def timed_training_run(command: list[str], code: Path, cwd: str) -> dict:
+    """Run a training script's `command` with `code` on PYTHONPATH (nothing else of the caller's
+    environment) in `cwd`, and read its last progress line: `sps` (its training loop's steps per
+    second), `routine_use` and `return` (its recent return; "?" where the line has none), with
+    the process's `wall` seconds and the `load` averages before it. A failed run ends the
+    benchmark with its command and the end of its stderr."""
+    load = load_average()
+    start = time.perf_counter()
+    proc = subprocess.run(command, capture_output=True, text=True, cwd=cwd,
+                          env={"PYTHONPATH": str(code), "PATH": "/usr/bin:/bin"})
+    wall = time.perf_counter() - start
+    if proc.returncode:
+        raise SystemExit(f"{' '.join(command)} failed:\n{proc.stderr[-2000:]}")
+    sps = [int(m) for m in re.findall(r"SPS\s+(\d+)", proc.stdout)]
+    use = re.findall(r"routine use\s+([\d.]+%)", proc.stdout)
+    returns = re.findall(r"return\(last 20\)\s+(\S+)", proc.stdout)
+    return {"sps": sps[-1], "wall": wall, "load": load, "routine_use": use[-1] if use else "?",
+            "return": returns[-1] if returns else "?"}
 
 
 def cpu_model() -> str:
