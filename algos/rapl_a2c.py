@@ -366,7 +366,7 @@ def authors_preset(args: Args) -> None:
     """`--authors`: set every flag of the authors' variant, refusing one given otherwise."""
     if not args.authors:
         return
-    given = given_flags()
+    given = given_flags(args)
     for field, value in AUTHORS_PRESET.items():
         if field in given and getattr(args, field) != value:
             raise UsageError(f"--authors sets {_as_flag(field, value)}; drop "

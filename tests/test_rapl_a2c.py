@@ -8,6 +8,7 @@ budgets (2 envs, a few hundred primitive steps); only the kill test starts a sub
 from __future__ import annotations
 
 import json
+import subprocess
 import sys
 from pathlib import Path
 
@@ -301,14 +302,26 @@ def test_killed_run_resumes_from_its_last_checkpoint_and_finishes(rapl_a2c, tmp_
                   key=lambda path: path.stat().st_mtime_ns)
     steps = _scalar_steps(resumed, "charts/SPS")
     assert min(steps) > killed_at and max(steps) == 3000
+    # The killed run's event file holds every episode up to its checkpoint (the writer is
+    # flushed before each checkpoint): the same episodes as an uninterrupted run of the seed.
+    (killed,) = set(checkpoint_path.parent.glob("events.out.tfevents.*")) - {resumed}
+    whole = tmp_path / "whole"
+    subprocess.run([*command[:-1], str(whole)], check=True, capture_output=True)
+    (whole_file,) = whole.glob("*/events.out.tfevents.*")
+    expected = [(s, r) for s, r in _scalars(whole_file, "charts/episodic_return") if s <= killed_at]
+    assert expected and _scalars(killed, "charts/episodic_return") == expected
 
 
 def _scalar_steps(event_file: Path, tag: str) -> list[int]:
+    return [step for step, _ in _scalars(event_file, tag)]
+
+
+def _scalars(event_file: Path, tag: str) -> list[tuple[int, float]]:
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     acc = EventAccumulator(str(event_file), size_guidance={"scalars": 0})
     acc.Reload()
-    return [e.step for e in acc.Scalars(tag)]
+    return [(e.step, e.value) for e in acc.Scalars(tag)]
 
 
 def test_resume_keeps_the_library_and_may_raise_the_budget(rapl_a2c, tmp_path, monkeypatch,

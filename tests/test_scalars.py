@@ -99,3 +99,37 @@ def test_a_writer_closed_and_used_again_goes_on_in_a_new_file(tmp_path):
     writer.close()
     assert len(list(tmp_path.glob("events.out.tfevents.*"))) == 2
     assert sorted(_scalars(tmp_path)["a"]) == [(1, 1.0), (2, 2.0)]
+
+
+def test_the_event_file_is_opened_once_not_once_per_event(tmp_path, monkeypatch):
+    # TensorBoard's stand-in GFile appends each record by opening and closing the file; the
+    # writer's record writer appends through one handle instead: no append after the first event.
+    from tensorboard.compat.tensorflow_stub.io.gfile import LocalFileSystem
+
+    appends = []
+    real_append = LocalFileSystem.append
+    monkeypatch.setattr(LocalFileSystem, "append",
+                        lambda fs, *a, **k: (appends.append(a[0]), real_append(fs, *a, **k)))
+    writer = ScalarWriter(str(tmp_path))
+    for step in range(1, 501):
+        writer.add_scalar("charts/episodic_return", step, step)
+    writer.close()
+    assert appends == []
+    assert _scalars(tmp_path)["charts/episodic_return"] == [(s, s) for s in range(1, 501)]
+
+
+def test_flush_puts_every_scalar_so_far_on_disk_while_the_writer_stays_open(tmp_path):
+    writer = ScalarWriter(str(tmp_path))
+    for step in range(1, 101):
+        writer.add_scalar("a", step * 2, step)
+    writer.flush()
+    assert _scalars(tmp_path)["a"] == [(s, s * 2) for s in range(1, 101)]
+    writer.add_scalar("a", 0.5, 101)
+    writer.close()
+    assert _scalars(tmp_path)["a"][-1] == (101, 0.5)
+
+
+def test_a_tensorboard_laid_out_otherwise_keeps_its_own_file_handle():
+    from routine_gym.plumbing.scalars import _append_through_one_handle
+
+    assert _append_through_one_handle(object()) is False

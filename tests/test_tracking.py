@@ -169,8 +169,12 @@ def test_no_flag_counts_as_given_so_a_resume_can_turn_tracking_off():
     class Args:
         track: bool = False
 
-    assert parse_args(Args, argv=["--no-track"]).track is False
-    assert "track" in given_flags()
+    parsed = parse_args(Args, argv=["--no-track"])
+    assert parsed.track is False
+    assert "track" in given_flags(parsed)
+    # An Args made in Python was given no flag, whatever was parsed before in the process
+    # (a resume called as main(Args(resume=..., total_timesteps=...)) keeps its new budget).
+    assert given_flags(Args()) == set()
 
 
 # -- the sweep -----------------------------------------------------------------------------------

@@ -14,6 +14,7 @@ import io
 import math
 import os
 import sys
+import weakref
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import fields
 from typing import Any
@@ -207,26 +208,27 @@ def parse_args(args_type: type, renamed: dict[str, str] | None = None,
     import tyro
 
     argv = list(sys.argv[1:] if argv is None else argv)
-    _GIVEN_FLAGS.clear()
     names = [a[2:].split("=")[0].replace("-", "_") for a in argv if a.startswith("--")]
-    # tyro's `--no-flag` sets the boolean `flag` (`--resume RUN --no-track` changes `track`).
-    _GIVEN_FLAGS.update(names, (n[len("no_"):] for n in names if n.startswith("no_")))
     for old, new in (renamed or {}).items():
         if any(a == old or a.startswith(old + "=") for a in argv):
             raise UsageError(f"{old} was renamed: use {new}")
     captured = io.StringIO()
     try:
         with contextlib.redirect_stderr(captured):
-            return tyro.cli(args_type, args=argv)
+            parsed = tyro.cli(args_type, args=argv)
     except SystemExit as exc:
         if exc.code in (0, None):
             raise
         raise UsageError(_tyro_message(captured.getvalue()) + " (see --help)") from None
+    # tyro's `--no-flag` sets the boolean `flag` (`--resume RUN --no-track` changes `track`).
+    _GIVEN_FLAGS[id(parsed)] = (weakref.ref(parsed), frozenset(
+        [*names, *(n[len("no_"):] for n in names if n.startswith("no_"))]))
+    return parsed
 
 
-#: The `Args` fields the command line set (`parse_args`), so `--resume` can tell a flag given
-#: with its default value from one not given. Empty when `main` is called from Python.
-_GIVEN_FLAGS: set[str] = set()
+#: id(Args) -> (the Args, the fields its command line set), for each `Args` `parse_args`
+#: returned, so `--resume` can tell a flag given with its default value from one not given.
+_GIVEN_FLAGS: dict[int, tuple[weakref.ref, frozenset[str]]] = {}
 
 
 def _tyro_message(box: str) -> str:
@@ -240,6 +242,8 @@ def _tyro_message(box: str) -> str:
     return " ".join(lines) or "bad arguments"
 
 
-def given_flags() -> set[str]:
-    """The `Args` fields the last `parse_args` saw on the command line (a copy)."""
-    return set(_GIVEN_FLAGS)
+def given_flags(args: Any) -> set[str]:
+    """The `Args` fields the command line set, for an `args` that `parse_args` returned; empty
+    for one made in Python (`main(Args(...))`), whatever was parsed before in the process."""
+    parsed, names = _GIVEN_FLAGS.get(id(args), (lambda: None, frozenset()))
+    return set(names) if parsed() is args else set()

@@ -305,6 +305,7 @@ class Run:
 
     def _save_state(self, counters: dict[str, int]) -> None:
         self._check_state(counters)  # a checkpoint never holds a diverged state
+        self.writer.flush()  # the scalars up to the checkpoint are on disk before it
         self.save_checkpoint({
             **{key: target.state_dict() for key, target in self._state.items()},
             **{name: counters[name] for name in self._counter_names},
@@ -463,7 +464,7 @@ def start_run(args: Any, script: str, checkpoint_keys: Iterable[str], *,
     if args.resume:
         args, checkpoint, path = resume_settings(args, checkpoint_keys, script,
                                                  lower_budget=lower_budget, budget=budget,
-                                                 given=given_flags() or None)
+                                                 given=given_flags(args) or None)
         saved_budget = json.loads(checkpoint["args"]).get(budget)
         # The saved settings are a file's content: checked as if typed on the command line.
         try:
