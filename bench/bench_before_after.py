@@ -43,6 +43,7 @@ RUNS = [
 ]
 COMMON = ["--num-envs", "16", "--torch-threads", "1", "--eval-episodes", "0",
           "--checkpoint-every", "0", "--log-every", "10000", "--seed", "1"]
+DEFAULT_OUT = REPO / "bench" / "results" / "before_after.md"
 SPS = re.compile(r"SPS\s+(\d+)")
 
 
@@ -70,8 +71,7 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=4)
     parser.add_argument("--runs", nargs="+", default=[name for name, _ in RUNS],
                         choices=[name for name, _ in RUNS])
-    parser.add_argument("--out", type=Path, default=REPO / "bench" / "results" /
-                        "before_after.md")
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = parser.parse_args()
     rows = []
     loads = []
@@ -90,18 +90,26 @@ def main() -> int:
                           f"{result[1]:.2f} s, SPS {result[2]}", flush=True)
             med = {side: [statistics.median(r[i] for r in got[side]) for i in range(3)]
                    for side in got}
-            rows.append((name, med["before"], med["after"]))
+            # Pair by pair (a run and the one after it): a drift of the machine's speed that
+            # outlasts a pair cancels in its ratio, not in the ratio of the medians.
+            pairs = sorted(a[0] / b[0] for b, a in zip(got["before"], got["after"], strict=True))
+            rows.append((name, med["before"], med["after"], pairs))
     lines = [f"# {__doc__.splitlines()[0]}", "",
              f"`python bench/bench_before_after.py {args.before} {args.after} --repeats "
-             f"{args.repeats}`", "",
+             f"{args.repeats}"
+             + ("" if len(args.runs) == len(RUNS) else " --runs " + " ".join(
+                 f"'{r}'" for r in args.runs))
+             + ("" if args.out == DEFAULT_OUT else f" --out {args.out}") + "`", "",
              f"before: `{args.before}`; after: `{args.after}`; {args.repeats} counted runs of "
              "each side, alternating, after one pair not counted. Medians:", "",
              "| run | wall before (s) | wall after (s) | after ÷ before | SPS before | "
-             "SPS after | after ÷ before | CPU s before | CPU s after |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    for name, b, a in rows:
+             "SPS after | after ÷ before | CPU s before | CPU s after | wall after ÷ before, "
+             "pair by pair: median (range) |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
+    for name, b, a, pairs in rows:
         lines.append(f"| {name} | {b[0]:.2f} | {a[0]:.2f} | {a[0] / b[0]:.3f} | {b[2]:,.0f} | "
-                     f"{a[2]:,.0f} | {a[2] / b[2]:.3f} | {b[1]:.2f} | {a[1]:.2f} |")
+                     f"{a[2]:,.0f} | {a[2] / b[2]:.3f} | {b[1]:.2f} | {a[1]:.2f} | "
+                     f"{statistics.median(pairs):.3f} ({pairs[0]:.3f}–{pairs[-1]:.3f}) |")
     machine = base_machine_info()
     lines += ["", "Machine: " + ", ".join(f"{k} {v}" for k, v in machine.items()),
               f"Load averages before each run: {', '.join(loads)}", ""]
