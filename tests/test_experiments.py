@@ -353,26 +353,33 @@ def test_a_snapshot_keeps_results_not_checkpoints_and_continues_as_a_sweep(local
 
 
 @pytest.mark.slow
-def test_smoke_sweeps_through_a_real_local_ray_instance(tmp_path):
-    # The local sweep above runs all seven; through Ray, the one that differs in kind: the
-    # ablation, plain runs beside experts whose demos the ID runs need (runs that wait on
-    # others), which keeps the suite within its time on two cores. The other experiments' runs
-    # are plain runs with other flags (CoinRun's extra evaluations, rl's rapl_ppo runs): to
-    # Ray a run is a command, so the local sweep covers them. One Ray instance serves the
-    # sweeps (a sweep joins the instance its process already has); a sweep starting its own is
-    # covered by the kill test below.
+def test_smoke_sweeps_through_a_real_local_ray_instance(tmp_path, monkeypatch):
+    # The local sweep above runs all seven; through Ray, what differs in kind: a run that waits
+    # on another (the ablation's expert and an ID run that mines the expert's demo). To Ray a run
+    # is a command, so the local sweep covers the other flags; the whole ablation goes through
+    # Ray in the kill test below, which also starts its own instance. Here the sweep joins the
+    # instance its process already has.
     ray = pytest.importorskip("ray")
+    real_build = sweep.build
+
+    def expert_and_one_follower(*args, **kwargs):
+        entries = real_build(*args, **kwargs)
+        (expert,) = [e for e in entries if e.role == "expert"]
+        follower = next(e for e in entries if expert.run.key in e.run.needs)
+        return [follower, expert]  # the follower first: the sweep must still wait for it
+
+    monkeypatch.setattr(sweep, "build", expert_and_one_follower)
     out = tmp_path / "ray"
-    names = ("ablation",)
     os.environ.setdefault("RAY_AUTH_MODE", "disabled")
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
              configure_logging=False)
     try:
-        _sweep_all(out, "ray", names)
-        for name in names:
-            assert _manifest_keys(out, name) <= set(_results(out)), name
+        printed = _sweep_all(out, "ray", ("ablation",)).getvalue()
+        assert len(_manifest_keys(out, "ablation")) == 2
+        assert _manifest_keys(out, "ablation") <= set(_results(out))
+        assert "[ablation] runs 2/2 done, 0 running, 0 failed" in printed
         before = _results(out)
-        _sweep_all(out, "ray", names)  # again: nothing is redone
+        _sweep_all(out, "ray", ("ablation",))  # again: nothing is redone
         assert _results(out) == before
     finally:
         ray.shutdown()
