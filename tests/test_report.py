@@ -573,3 +573,11 @@ def test_each_method_and_ablation_variant_has_its_own_colour():
     assert ablation.VARIANT_COLOURS["Full"] == drawing.COLOURS["RAPL-A2C"]
     colours = list(drawing.COLOURS.values()) + list(variants.values())
     assert len({c.lower() for c in colours}) == len(colours)
+
+
+def test_each_arm_of_the_diagnosis_figure_has_its_own_colour():
+    # The diagnosis figure draws A2C, RAPL-A2C and every variant side by side (bars and the
+    # counters' lines): two arms in one colour cannot be told apart.
+    arms = {"A2C": drawing.COLOURS["A2C"], "RAPL-A2C": drawing.COLOURS["RAPL-A2C"],
+            **diagnosis.VARIANT_COLOURS}
+    assert len({c.lower() for c in arms.values()}) == len(arms), arms

@@ -66,7 +66,7 @@ MACRO_AT_A2C_UPDATES = "MacroAction, A2C's updates"
 VARIANTS = ("A2C", "RAPL-A2C", DECISIONS, AUTHORS, MACRO, A2C_AT_RAPL_UPDATES,
             RAPL_AT_A2C_UPDATES, A2C_CONSTANT, MACRO_AT_A2C_UPDATES)
 VARIANT_COLOURS = {DECISIONS: "#ff9896", AUTHORS: "#8c564b", MACRO: "#aec7e8",
-                   A2C_AT_RAPL_UPDATES: "#98df8a", RAPL_AT_A2C_UPDATES: "#d62728",
+                   A2C_AT_RAPL_UPDATES: "#98df8a", RAPL_AT_A2C_UPDATES: "#ff7f0e",
                    A2C_CONSTANT: "#2ca02c", MACRO_AT_A2C_UPDATES: "#9467bd"}
 #: Each variant's marker in the per-run figure (runs of two variants may sit on one point).
 MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*", "h")
