@@ -108,8 +108,9 @@ class Args:
     """seed of the experiment"""
     seed_stride: int = 1
     """env seeds: 1 resets training env i with seed + i (experiment seeds then share env seeds);
-    S ≥ 4 gives each seed its own block [seed·S, (seed+1)·S) of env seeds
-    (`routine_gym.plumbing.seeds`)"""
+    S > 1 gives each seed its own block [seed·S, (seed+1)·S) of env seeds, S at least 4,
+    2 × --num-envs, 4 × --eval-episodes and 4 × --demo-episodes (`routine_gym.plumbing.seeds`);
+    the fair budgets use 1000"""
     torch_deterministic: bool = True
     """if toggled, `torch.backends.cudnn.deterministic=True`"""
     cuda: bool = False
