@@ -607,8 +607,11 @@ def main(args: Args) -> None:
 
     # What a checkpoint holds; a resumed run starts where its checkpoint left off.
     # --budget-unit decisions: the budget, the schedule and --checkpoint-every count decisions.
+    # With --interrupt, the stop rule's counts too: counters/interruptions counts the whole run.
+    state = {"model": agent, "optimizer": optimizer,
+             **({"interruptions": stop_rule} if stop_rule is not None else {})}
     global_step, iteration, decisions = run.resume(
-        {"model": agent, "optimizer": optimizer}, global_step=0, iteration=0, decisions=0,
+        state, global_step=0, iteration=0, decisions=0,
         count="decisions" if args.budget_unit == "decisions" else "global_step", filmed=envs,
         extra={"library": json.dumps(library.to_dict()) if library is not None else ""})
     # The env is reset with a seed that depends on where the run is, so a resumed run does not

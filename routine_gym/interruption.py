@@ -106,6 +106,13 @@ class PolicyStopRule:
         self.asked += len(stop)
         return stop
 
+    def state_dict(self) -> dict[str, int]:
+        """The counts, for a run's checkpoint: a resumed run counts on from them."""
+        return {"interruptions": self.interruptions, "asked": self.asked}
+
+    def load_state_dict(self, state: dict[str, int]) -> None:
+        self.interruptions, self.asked = int(state["interruptions"]), int(state["asked"])
+
 
 def set_stop_rule(envs: Any, rule: StopRule | None) -> None:
     """Give a training vector env's routines the stop rule `rule` (None: run them in full).

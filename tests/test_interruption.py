@@ -307,6 +307,31 @@ def test_interrupt_trains_and_logs_its_interruptions(tmp_path, script, mode):
     assert all(0 <= s <= 1 for s in shares)
 
 
+@pytest.mark.parametrize("script", ["a2c", "ppo"])
+def test_a_resumed_run_counts_its_interruptions_on_from_its_checkpoint(tmp_path, script):
+    import torch
+
+    batch = ["--num-steps", 32] if script == "ppo" else []
+    common = ["--interrupt", 0.2, "--num-envs", 4, *batch, "--eval-episodes", 0,
+              "--torch-threads", 1, "--scalars-every", 10]
+    proc = _run(script, tmp_path, "--mode", "rapl", "--total-timesteps", 1500,
+                "--checkpoint-every", 500, *common)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    (run,) = (tmp_path / "runs").iterdir()
+    saved = torch.load(run / "checkpoint.pt", weights_only=True)["interruptions"]
+    assert saved["interruptions"] > 0 and saved["asked"] >= saved["interruptions"]
+    first_file = set(run.glob("events.out.tfevents.*"))
+    resumed = subprocess.run([sys.executable, SCRIPTS[script], "--resume", str(run),
+                              "--total-timesteps", "3000"], cwd=tmp_path, capture_output=True,
+                             text=True, timeout=300, stdin=subprocess.DEVNULL)
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    (second,) = set(run.glob("events.out.tfevents.*")) - first_file
+    events = EventAccumulator(str(second))
+    events.Reload()
+    stops = [e.value for e in events.Scalars("counters/interruptions")]
+    assert stops[0] >= saved["interruptions"] and stops == sorted(stops)  # a whole-run total
+
+
 @pytest.mark.parametrize("script, flags, names", [
     ("a2c", ("--interrupt", -1), ("--interrupt", "≥ 0", "-1")),
     ("a2c", ("--interrupt", 1.0, "--mode", "a2c"), ("--interrupt", "--mode a2c")),

@@ -13,7 +13,8 @@ advances the step counter by ℓ. Every script with temporally extended actions 
     counters/primitive_share      share of those decisions that chose a primitive action
     counters/share_k              share of those decisions that chose routine (option) k
     counters/interruptions        routines stopped early so far by the run's stop rule (with one,
-                                  `--interrupt`; counted since this process started)
+                                  `--interrupt`; over the whole run, a resumed run counting
+                                  on from its checkpoint)
     counters/interrupted_share    share of the routine decisions since the previous log that
                                   were stopped early
 
