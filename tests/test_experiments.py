@@ -356,9 +356,9 @@ def test_a_snapshot_keeps_results_not_checkpoints_and_continues_as_a_sweep(local
 def test_smoke_sweeps_through_a_real_local_ray_instance(tmp_path, monkeypatch):
     # The local sweep above runs all seven; through Ray, what differs in kind: a run that waits
     # on another (the ablation's expert and an ID run that mines the expert's demo). To Ray a run
-    # is a command, so the local sweep covers the other flags; the whole ablation goes through
-    # Ray in the kill test below, which also starts its own instance. Here the sweep joins the
-    # instance its process already has.
+    # is a command, so the local sweep covers the other flags; the kill test below sweeps rl's
+    # runs of both RAPL scripts through Ray, on an instance it starts itself. Here the sweep
+    # joins the instance its process already has.
     ray = pytest.importorskip("ray")
     real_build = sweep.build
 
