@@ -71,14 +71,27 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=4)
     parser.add_argument("--runs", nargs="+", default=[name for name, _ in RUNS],
                         choices=[name for name, _ in RUNS])
+    parser.add_argument("--steps", type=int, default=None,
+                        help="agent steps of every run instead of each run's own (a quick check)")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = parser.parse_args()
+    if args.repeats < 1:
+        parser.error(f"--repeats must be at least 1, not {args.repeats}")
+    if args.steps is not None and args.steps < 1:
+        parser.error(f"--steps must be at least 1, not {args.steps}")
+    for side in ("before", "after"):
+        if not (getattr(args, side) / "algos" / "rapl_a2c.py").is_file():
+            parser.error(f"{side} {getattr(args, side)} is not a routine-gym checkout "
+                         "(it has no algos/rapl_a2c.py)")
     rows = []
     loads = []
     with tempfile.TemporaryDirectory() as tmp:
         for name, flags in RUNS:
             if name not in args.runs:
                 continue
+            if args.steps is not None:
+                at = flags.index("--total-timesteps") + 1
+                flags = [*flags[:at], str(args.steps), *flags[at + 1:]]
             got: dict[str, list[tuple[float, float, int]]] = {"before": [], "after": []}
             for repeat in range(args.repeats + 1):  # the first pair warms caches: not counted
                 for side in ("before", "after"):
@@ -99,6 +112,7 @@ def main() -> int:
              f"{args.repeats}"
              + ("" if len(args.runs) == len(RUNS) else " --runs " + " ".join(
                  f"'{r}'" for r in args.runs))
+             + ("" if args.steps is None else f" --steps {args.steps}")
              + ("" if args.out == DEFAULT_OUT else f" --out {args.out}") + "`", "",
              f"before: `{args.before}`; after: `{args.after}`; {args.repeats} counted runs of "
              "each side, alternating, after one pair not counted. Medians:", "",
