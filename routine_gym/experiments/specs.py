@@ -255,7 +255,8 @@ BUDGETS: dict[str, Budget] = {
     "fair-long": Budget(
         name="fair-long",
         description="the fair protocol at the paper's 10^7 agent steps: MinAtar's five games, "
-                    "A2C, RAPL-A2C and the authors' code tuned at 10^7, 5 independent seeds",
+                    "A2C and RAPL-A2C tuned at 10^7 (the authors' code at A2C's constant rate), "
+                    "5 independent seeds",
         seeds=5, games=MINATAR, rl_games=MINATAR, imitation_games=MINATAR,
         steps=10_000_000, coinrun_steps=500_000, sqil_steps=100_000, gail_steps=500_000,
         bc_steps=10_000, expert_steps=10_000_000, shipped_expert_steps=10_000_000,

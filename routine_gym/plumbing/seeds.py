@@ -7,7 +7,7 @@ records its demo from episodes reset with `d, d + 1, …`:
 - `--seed-stride 1` (the default, every committed run): `b = s`, `e = s + 10,000`,
   `d = s + 20,000`. Seeds 1, 2 and 3 of an experiment then share 14 of their 16 training env
   seeds and 29 of their 30 evaluation episodes.
-- `--seed-stride S` (S ≥ 2): run `s` owns the block `[s·S, (s + 1)·S)`: training envs from
+- `--seed-stride S` (S ≥ 4): run `s` owns the block `[s·S, (s + 1)·S)`: training envs from
   `s·S`, evaluation episodes from `s·S + S/2`, demo episodes from `s·S + 3S/4`. No two
   experiment seeds share an env seed as long as `E ≤ S/2` and at most `S/4` evaluation and demo
   episodes each (`stride_checks`).
