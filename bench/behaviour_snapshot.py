@@ -159,6 +159,10 @@ def compare(before: Path, after: Path) -> int:
         if not (before / f"{name}.json").is_file():
             print(f"{name:16s} not in {before} (recorded before the run was added)")
             continue
+        if not (after / f"{name}.json").is_file():
+            differ += 1
+            print(f"{name:16s} not in {after}")
+            continue
         a, b = (json.loads((d / f"{name}.json").read_text()) for d in (before, after))
         for kept in (a, b):  # a record made with fewer wall-clock tags left out
             kept["scalars"] = {t: v for t, v in kept["scalars"].items() if t not in WALL_CLOCK}
@@ -193,6 +197,12 @@ def main() -> int:
     c.add_argument("before", type=Path)
     c.add_argument("after", type=Path)
     args = parser.parse_args()
+    if args.action == "compare":
+        for side in ("before", "after"):
+            folder = getattr(args, side)
+            if not any((folder / f"{name}.json").is_file() for name, _, _ in RUNS):
+                parser.error(f"{side} {folder} is not a record of `behaviour_snapshot.py record` "
+                             "(it has no run's .json)")
     if args.action == "record":
         record(args.dest)
         return 0

@@ -131,8 +131,24 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", type=Path,
                         default=REPO / "bench" / "results" / "baselines_minatar.md")
     args = parser.parse_args(argv)
+    for name in ("steps", "eval_episodes", "jobs"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name.replace('_', '-')} must be at least 1, "
+                         f"not {getattr(args, name)}")
+    if args.checkpoint_every < 0:
+        parser.error(f"--checkpoint-every must be at least 0, not {args.checkpoint_every}")
+    if len(set(args.seeds)) < len(args.seeds):
+        parser.error(f"--seeds names a seed twice: {' '.join(map(str, args.seeds))}")
     args.env_ids = [f"MinAtar/{g}-v1" for g in args.games]
     routine_gym.register_envs()
+    import gymnasium
+
+    known = sorted(e[len("MinAtar/"):-len("-v1")] for e in gymnasium.registry
+                   if e.startswith("MinAtar/") and e.endswith("-v1"))
+    unknown = [g for g in args.games if g not in known]
+    if unknown:
+        parser.error(f"--games {' '.join(unknown)}: no such MinAtar game "
+                     f"(choose from {', '.join(known)})")
     command = "python bench/bench_baselines.py " + shlex.join(sys.argv[1:] if argv is None
                                                                else argv)
     print(f"# {command}\n# load average at start: {load_average()}", flush=True)

@@ -179,12 +179,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "imitation.md",
                         help="markdown report; the raw numbers go beside it as .json")
     args = parser.parse_args(argv)
-    for name in ("steps", "gail_steps", "bc_steps", "atari_steps", "atari_gail_steps",
-                 "atari_bc_steps"):
+    for name in ("steps", "atari_steps"):  # 0 skips the env
         if getattr(args, name) < 0:
             parser.error(f"--{name.replace('_', '-')} needs to be ≥ 0, "
                          f"actual value: {getattr(args, name)}")
-    for name in ("eval_episodes", "atari_eval_episodes", "jobs"):
+    # The scripts take no run of 0 steps: every BC or GAIL run would fail.
+    for name in ("gail_steps", "bc_steps", "atari_gail_steps", "atari_bc_steps",
+                 "eval_episodes", "atari_eval_episodes", "jobs"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} needs to be ≥ 1, "
                          f"actual value: {getattr(args, name)}")
@@ -192,6 +193,12 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"--temperatures need to be > 0, actual value: {args.temperatures}")
     if args.steps == 0 and args.atari_steps == 0:
         parser.error("nothing to run: --steps and --atari-steps are both 0")
+    if len(set(args.seeds)) < len(args.seeds):
+        parser.error(f"--seeds names a seed twice: {' '.join(map(str, args.seeds))}")
+    # A run reads back the one eval.json of its folder: an earlier run's would make it fail.
+    if args.run_dir is not None and next(args.run_dir.glob("**/eval.json"), None):
+        parser.error(f"--run-dir {args.run_dir} already holds runs (eval.json): "
+                     "give an empty or new folder")
 
     from routine_gym.atomic import atomic_write_text
 

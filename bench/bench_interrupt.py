@@ -14,8 +14,8 @@ STEPS --eval-episodes 0 --checkpoint-every 0 --torch-threads 1 --seed 1` with it
 figure is the script's own last `SPS` (primitive agent steps per second since the start of
 training: env creation and mining are outside it) and the wall time of the whole process.
 The load averages are taken before each run. Then the vector env's step alone (`ENV_STEP`),
-`before` against `off`, the one place where `off` adds work. Results:
-`bench/results/interrupt.md`.
+`before` against `off` over `--env-step-rounds` rounds, the one place where `off` adds work.
+Results: `bench/results/interrupt.md`.
 
     python bench/bench_interrupt.py --before /work/frozen3
 """
@@ -84,9 +84,24 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=100_000)
     parser.add_argument("--margin", type=float, default=1.0)
     parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--env-step-rounds", type=int, default=3,
+                        help="interleaved rounds of the vector env's step alone (0: none)")
     parser.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "interrupt.md")
     args = parser.parse_args()
+    if args.steps < 1:
+        parser.error(f"--steps must be at least 1, not {args.steps}")
+    if args.repeats < 1:
+        parser.error(f"--repeats must be at least 1, not {args.repeats}")
+    if args.env_step_rounds < 0:
+        parser.error(f"--env-step-rounds must be at least 0, not {args.env_step_rounds}")
+    if args.margin < 0:
+        parser.error(f"--margin must be at least 0 (nats), not {args.margin:g}")
+    if not (args.before / "algos" / "rapl_a2c.py").is_file():
+        parser.error(f"--before {args.before} is not a routine-gym checkout "
+                     "(it has no algos/rapl_a2c.py)")
     demo = REPO / "demos" / f"{args.env_id.replace('/', '-')}.npz"
+    if not demo.is_file():
+        parser.error(f"--env-id {args.env_id} has no demo {demo}")
     configs = {"before": (args.before, None), "off": (REPO, None), "on": (REPO, args.margin)}
     results: dict[str, list[dict]] = {name: [] for name in configs}
     with tempfile.TemporaryDirectory() as run_dir:
@@ -98,7 +113,8 @@ def main() -> None:
                       f"{result['wall']:6.1f} s  load {result['load']}", flush=True)
     lines = [f"# `--interrupt` speed: rapl_a2c.py --mode rapl on {args.env_id}", "",
              f"`python bench/bench_interrupt.py --before {args.before} --steps {args.steps} "
-             f"--margin {args.margin} --repeats {args.repeats}`", "",
+             f"--margin {args.margin} --repeats {args.repeats} --env-step-rounds "
+             f"{args.env_step_rounds}`", "",
              "Each configuration's command (run from a temporary folder; `before` with "
              f"PYTHONPATH={args.before}, the others with this checkout):", ""]
     for name in configs:
@@ -122,16 +138,17 @@ def main() -> None:
               "",
               "Machine: " + "; ".join(f"{k}: {v}" for k, v in base_machine_info().items()), ""]
     steps_us: dict[str, list[float]] = {"before": [], "off": []}
-    for _ in range(3):
+    for _ in range(args.env_step_rounds):
         for name in steps_us:
             steps_us[name].append(env_step_us(configs[name][0]))
-    lines += ["The vector env's step alone (`ENV_STEP` in this file: 16 Breakout games with "
-              "routines, record_observations, no stop rule), µs per step, best of 5 blocks of "
-              "4,000, 3 interleaved rounds:", ""]
-    for name, times in steps_us.items():
-        lines.append(f"- `{name}`: {', '.join(f'{t:.2f}' for t in times)} (best "
-                     f"{min(times):.2f})")
-    lines.append("")
+    if args.env_step_rounds:
+        lines += ["The vector env's step alone (`ENV_STEP` in this file: 16 Breakout games with "
+                  "routines, record_observations, no stop rule), µs per step, best of 5 blocks "
+                  f"of 4,000, {args.env_step_rounds} interleaved rounds:", ""]
+        for name, times in steps_us.items():
+            lines.append(f"- `{name}`: {', '.join(f'{t:.2f}' for t in times)} (best "
+                         f"{min(times):.2f})")
+        lines.append("")
     args.out.write_text("\n".join(lines))
     print("\n".join(lines))
 
