@@ -105,3 +105,19 @@ def test_the_report_by_hand(tmp_path):
     assert met == {"RAPL-A2C + intra-routine": "no", "RAPL-A2C + all": "**yes**"}
     assert "| RAPL-A2C + all | 3 of 3 | 1.00 [1.00, 1.00] | **yes** |" in text
     assert (tmp_path / "equal_frames.png").stat().st_size > 10_000
+
+
+def test_relative_bar_by_hand():
+    """The figure's bar and error bar: S_X = (3, 5, 7) mean 5, se 2/√3; S_B = (8, 12) mean 10,
+    se 2: −50 % ± 100·√(4/3 + 4)/10 = ± 23.09 %; one seed of X has se 0; no baseline or a
+    baseline of 0 draws nothing."""
+    from routine_gym.experiments.paper.equal_frames import relative_bar
+
+    value, error = relative_bar([3.0, 5.0, 7.0], [8.0, 12.0])
+    assert value == pytest.approx(-50.0)
+    assert error == pytest.approx(100 * (4 / 3 + 4) ** 0.5 / 10)
+    assert relative_bar([15.0], [8.0, 12.0]) == pytest.approx((50.0, 20.0))
+    # A negative baseline: the sign of the bar says better or worse, |S_B| scales it.
+    assert relative_bar([-5.0], [-10.0])[0] == pytest.approx(50.0)
+    assert all(math.isnan(v) for v in relative_bar([1.0], []))
+    assert all(math.isnan(v) for v in relative_bar([1.0], [0.0, 0.0]))

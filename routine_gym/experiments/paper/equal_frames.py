@@ -185,9 +185,26 @@ def _family_lines(w: Writer, family: str, groups: dict[str, list[RunRecord]],
                    goal_rows)]
 
 
+def relative_bar(s_x: Sequence[float], s_b: Sequence[float]) -> tuple[float, float]:
+    """An arm's bar over its baseline, in %: 100 (S̄_X − S̄_B)/|S̄_B| and its error bar,
+    100 √(se_X² + se_B²)/|S̄_B| (the standard error of the difference over the baseline's
+    mean; an arm of one seed has se 0). NaN and NaN without scores or with S̄_B = 0.
+
+    Example:
+        >>> relative_bar([4.0, 6.0], [9.0, 11.0])  # se 1 each: −50 % ± 100·√2/10
+        (-50.0, 14.142135623730951)
+    """
+    if not len(s_x) or not len(s_b) or abs(float(np.mean(s_b))) <= 1e-9:
+        return math.nan, math.nan
+    mean_b = float(np.mean(s_b))
+    value = 100 * (float(np.mean(s_x)) - mean_b) / abs(mean_b)
+    error = 100 * math.hypot(standard_error(s_x), standard_error(s_b)) / abs(mean_b)
+    return value, error
+
+
 def _draw_relative(w: Writer, groups: dict[str, list[RunRecord]], games: list[str]) -> None:
-    """Per family a panel: each RAPL arm's (S_X − S_B)/|S_B| per game, in %, each arm in the
-    same colour whatever arms have runs."""
+    """Per family a panel: each RAPL arm's (S_X − S_B)/|S_B| per game, in %, with ±1 s.e. of
+    the difference (`relative_bar`), each arm in the same colour whatever arms have runs."""
     fig = figure(12.0, 8.0)
     axes = fig.subplots(2, 1)
     labels = game_labels(games)
@@ -204,13 +221,11 @@ def _draw_relative(w: Writer, groups: dict[str, list[RunRecord]], games: list[st
         width = 0.8 / len(names)
         x = np.arange(len(games))
         for i, a in enumerate(names):
-            values = []
-            for g in games:
-                s_x, s_b = _scores(groups[a], g), _scores(groups[base], g)
-                ok = s_x and s_b and abs(np.mean(s_b)) > 1e-9
-                values.append(100 * (np.mean(s_x) - np.mean(s_b)) / abs(np.mean(s_b))
-                              if ok else np.nan)
-            ax.bar(x + (i - (len(names) - 1) / 2) * width, np.nan_to_num(values), width,
+            bars = [relative_bar(_scores(groups[a], g), _scores(groups[base], g)) for g in games]
+            values, errors = np.array(bars, dtype=np.float64).T
+            drawn = np.isfinite(values)  # a game without the arm's runs has no bar
+            ax.bar((x + (i - (len(names) - 1) / 2) * width)[drawn], values[drawn], width,
+                   yerr=errors[drawn], capsize=2, error_kw={"linewidth": 0.8},
                    color=PALETTE[every.index(a) % len(PALETTE)], label=a)
         ax.axhline(0.0, color="black", linewidth=0.8)
         ax.set_xticks(x, [labels[g] for g in games])
@@ -259,7 +274,8 @@ def section(w: Writer, runs: list[RunRecord]) -> list[str]:
     games = sorted({r.env_id for rs in groups.values() for r in rs})
     _draw_relative(w, groups, games)
     _draw_curves(w, groups, games)
-    lines = [f"Figures: `{FILE}.png` (each arm over its baseline per game) and "
+    lines = [f"Figures: `{FILE}.png` (each arm over its baseline per game, ±1 s.e. of the "
+             "difference) and "
              f"`{CURVES_FILE}.png` (the A2C family's training curves and update clocks). "
              "Every arm at its method's tuned settings (RAPL's for the mechanisms); the "
              "mechanisms' flags: " + "; ".join(
