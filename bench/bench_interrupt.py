@@ -113,8 +113,8 @@ def main() -> None:
                       f"{result['wall']:6.1f} s  load {result['load']}", flush=True)
     lines = [f"# `--interrupt` speed: rapl_a2c.py --mode rapl on {args.env_id}", "",
              f"`python bench/bench_interrupt.py --before {args.before} --steps {args.steps} "
-             f"--margin {args.margin} --repeats {args.repeats} --env-step-rounds "
-             f"{args.env_step_rounds}`", "",
+             f"--env-id {args.env_id} --margin {args.margin} --repeats {args.repeats} "
+             f"--env-step-rounds {args.env_step_rounds} --out {args.out}`", "",
              "Each configuration's command (run from a temporary folder; `before` with "
              f"PYTHONPATH={args.before}, the others with this checkout):", ""]
     for name in configs:

@@ -29,8 +29,9 @@ def test_one_round_writes_a_row_per_configuration_and_the_ratios(tmp_path):
                re.findall(r"^round 1 +(before|off|on): SPS +(\d+)", done.stdout, re.M)}
     assert list(printed) == ["before", "off", "on"]
     report = out.read_text()
-    assert (f"`python bench/bench_interrupt.py --before {ROOT} --steps 80 --margin 0.5 "
-            "--repeats 1 --env-step-rounds 1`") in report
+    assert (f"`python bench/bench_interrupt.py --before {ROOT} --steps 80 --env-id "
+            f"MinAtar/Breakout-v1 --margin 0.5 --repeats 1 --env-step-rounds 1 --out {out}`"
+            ) in report
     commands = dict(re.findall(r"^- `(before|off|on)`: `python (.*)`$", report, re.M))
     assert commands["before"] == commands["off"]  # both sides are this checkout
     assert commands["on"] == commands["off"] + " --interrupt 0.5"
