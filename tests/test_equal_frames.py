@@ -121,3 +121,35 @@ def test_relative_bar_by_hand():
     assert relative_bar([-5.0], [-10.0])[0] == pytest.approx(50.0)
     assert all(math.isnan(v) for v in relative_bar([1.0], []))
     assert all(math.isnan(v) for v in relative_bar([1.0], [0.0, 0.0]))
+
+
+def test_the_counters_table_by_hand(tmp_path):
+    """Counters from result.json, mean over the runs that have each: RAPL-A2C + interruption
+    with updates 100 and 300 (mean 200), primitive share 0.6 and 0.8 (routine share 30 %) and
+    interrupted share 0.5 and (a run before the counter) none: 50 %; A2C has no stop rule: –."""
+    def counted(method, seed, score, counters, variant=None):
+        run = _record(method, "MinAtar/Breakout-v1", seed, score, variant)
+        run.result["counters"] = counters
+        return run
+
+    stop = {"mechanism": "interruption"}
+    runs = [counted("A2C", 1, 5.0, {"updates": 400, "decisions": 1000, "primitive_share": 1.0,
+                                    "steps_per_decision": 1.0}),
+            counted("RAPL-A2C", 1, 4.0, {"updates": 100, "primitive_share": 0.7}),
+            counted("RAPL-A2C", 1, 3.0, {"updates": 100, "decisions": 500,
+                                         "steps_per_decision": 2.0, "primitive_share": 0.6,
+                                         "interrupted_share": 0.5}, stop),
+            counted("RAPL-A2C", 2, 3.0, {"updates": 300, "decisions": 700,
+                                         "steps_per_decision": 1.5, "primitive_share": 0.8},
+                    stop)]
+    w = Writer(tmp_path, references={}, reps=200, seed=0)
+    text = "\n".join(equal_frames.section(w, runs))
+    assert "| A2C | Breakout | 1 | 400 | 1000 | 1.00 | 0.0 % | – |" in text
+    assert "| RAPL-A2C + interruption | Breakout | 2 | 200 | 600 | 1.75 | 30.0 % | 50.0 % |" \
+        in text
+    rows = list(csv.reader((tmp_path / "equal_frames_a2c_counters.csv").read_text()
+                           .splitlines()))
+    assert rows[0] == list(equal_frames.COUNTER_COLUMNS)
+    stopped = next(r for r in rows if r[1] == "RAPL-A2C + interruption")
+    assert float(stopped[4]) == 200 and float(stopped[7]) == pytest.approx(0.3)
+    assert float(stopped[8]) == pytest.approx(0.5)

@@ -365,7 +365,7 @@ def test_fig3_from_the_curves_kept_in_result_json_without_tensorboard_logs(full,
         result_path = log.parent.parent / "result.json"
         result = json.loads(result_path.read_text())
         # what the sweep keeps
-        result["curve"], _ = backends._curve_and_counters(log.parent, {"steps": STEPS,
+        result["curve"], _ = backends.curve_and_counters(log.parent, {"steps": STEPS,
                                                                         "flags": {}})
         result_path.write_text(json.dumps(result))
         shutil.rmtree(log.parent)

@@ -45,8 +45,8 @@ from routine_gym.experiments.training_curves import (
     read_scalars,
 )
 
-__all__ = ["LocalBackend", "RayBackend", "command", "execute_run", "install_signal_handlers",
-           "file_tail", "script_path", "tracking_flags"]
+__all__ = ["LocalBackend", "RayBackend", "command", "curve_and_counters", "execute_run",
+           "install_signal_handlers", "file_tail", "script_path", "tracking_flags"]
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -151,7 +151,7 @@ def _last_line(path: Path) -> str:
     return lines[-1] if lines else "(no output)"
 
 
-def _curve_and_counters(run_dir: Path, config: dict[str, Any]
+def curve_and_counters(run_dir: Path, config: dict[str, Any]
                         ) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
     """The run's training episodes binned as the report bins them
     (`training_curves.curve_bins`), so a snapshot of `result.json`s draws Fig. 3 without the
@@ -203,7 +203,7 @@ def execute_run(config: dict[str, Any], runs_dir: str, cuda: bool = False) -> di
     try:
         extra = {p.stem[len("eval-"):]: read_json_object(p)
                  for p in sorted(run_dir.glob("eval-*.json"))}
-        curve, counters = _curve_and_counters(run_dir, config)
+        curve, counters = curve_and_counters(run_dir, config)
         result = {"key": config["key"], "run_dir": run_dir.name,
                   "eval": read_json_object(evals[-1]), "evals": extra, "curve": curve,
                   "seconds": time.time() - start, "finished": utc_now(),

@@ -6,6 +6,9 @@ reads them back (`counter_record`) into `result.json`'s `counters`:
 
     decisions, updates, primitive_steps     the run's totals
     steps_per_decision                      primitive_steps / decisions
+    interruptions, interrupted_share        with a stop rule (`--interrupt`): the routines it
+                                            stopped early, and their share of the routine
+                                            calls (absent without one)
     primitive_share, shares                 the share of all decisions that chose a primitive
                                             action, and each routine (option)
     episode_length                          the mean length of its training episodes
@@ -96,6 +99,14 @@ def counter_record(scalars: dict[str, _Series], total_steps: int | None = None,
         (0.875, [0.125])
         >>> r["bins"]["steps_per_decision"], r["bins"]["updates"], r["bins"]["shares"]
         ([1.0, 1.5], [1, 2], [[0.0, 0.25]])
+        >>> "interruptions" in r  # no stop rule, no interruptions
+        False
+
+    With a stop rule that stopped that one routine call, 1 of the run's 0·4 + 0.25·4 calls:
+        >>> s["counters/interruptions"] = (np.array([4, 10]), np.array([0.0, 1.0]))
+        >>> r = counter_record(s, total_steps=10, bins=2)
+        >>> r["interruptions"], r["interrupted_share"]
+        (1, 1.0)
     """
     if "counters/decisions" not in scalars or "counters/updates" not in scalars:
         return None
@@ -128,6 +139,13 @@ def counter_record(scalars: dict[str, _Series], total_steps: int | None = None,
     shares = [share(f"counters/share_{k}") for k in range(num_shares)]
     record["primitive_share"] = _number(primitive[0])
     record["shares"] = [_number(mean) for mean, _ in shares]
+    if "counters/interruptions" in scalars and scalars["counters/interruptions"][1].size:
+        stops = float(scalars["counters/interruptions"][1][-1])
+        at, values = scalars.get("counters/primitive_share", (np.zeros(0), np.zeros(0)))
+        calls = sum(window_made.get(step, 0.0) * (1.0 - value)  # the windows' routine calls
+                    for step, value in zip(at.tolist(), values.tolist(), strict=True))
+        record["interruptions"] = int(stops)
+        record["interrupted_share"] = _number(stops / calls) if calls > 0 else None
     lengths = scalars.get("charts/episodic_length")
     record["episode_length"] = _number(float(lengths[1].mean())) \
         if lengths is not None and lengths[1].size else None

@@ -36,7 +36,7 @@ import numpy as np
 from routine_gym.experiments.drawing import figure, game_labels
 from routine_gym.experiments.experiment import Experiment
 from routine_gym.experiments.results import RunRecord
-from routine_gym.experiments.run_counters import mean_bins
+from routine_gym.experiments.run_counters import mean_bins, run_counter
 from routine_gym.experiments.sections import aggregate, aggregate_lines, group_runs
 from routine_gym.experiments.specs import Builder
 from routine_gym.experiments.statistics import probability_of_improvement, standard_error, welch
@@ -169,6 +169,9 @@ def _family_lines(w: Writer, family: str, groups: dict[str, list[RunRecord]],
         gaps.append(a)
     w.csv(f"{FILE}_{family.lower()}", ("family", "arm", "env_id", "runs", "mean", "se",
                                         "gap_closed"), csv_rows)
+    counted = counter_rows(groups, names, games)
+    w.csv(f"{FILE}_{family.lower()}_counters", COUNTER_COLUMNS, [
+        (family, *row) for row in counted])
     return [f"### The {family} family (`{'rapl_a2c' if family == 'A2C' else 'rapl_ppo'}.py`)",
             "",
             "Mean final score ± standard error over seeds; Welch's t-test over seeds against "
@@ -179,6 +182,13 @@ def _family_lines(w: Writer, family: str, groups: dict[str, list[RunRecord]],
             *aggregate_lines(w, agg),
             *table(("arm", "IQM [95 % CI]"),
                    [(a, interval(agg.iqm.get(a), agg.percent)) for a in agg.iqm]),
+            "What the runs counted (mean over seeds; the interrupted share is of the routine "
+            "calls, – without a stop rule or where a run predates the counter):", "",
+            *table(("arm", "game", "runs", "updates", "decisions", "steps per decision",
+                    "routine share", "interrupted"),
+                   [(a, game_labels([g])[g], n, num(u, 0), num(d, 0), num(spd),
+                     pct(share), pct(stopped) if math.isfinite(stopped) else "–")
+                    for a, g, n, u, d, spd, share, stopped in counted]),
             f"The goal (issue 49): at or above {base} on ≥ {GOAL_GAMES} games and "
             f"P(X > {base}) ≥ {GOAL_POI} with its 95 % interval above 0.5:", "",
             *table(("arm", f"games ≥ {base}", f"P(X > {base}) [95 % CI]", "goal met"),
@@ -200,6 +210,33 @@ def relative_bar(s_x: Sequence[float], s_b: Sequence[float]) -> tuple[float, flo
     value = 100 * (float(np.mean(s_x)) - mean_b) / abs(mean_b)
     error = 100 * math.hypot(standard_error(s_x), standard_error(s_b)) / abs(mean_b)
     return value, error
+
+
+#: The counters CSV's columns (`equal_frames_{family}_counters.csv`).
+COUNTER_COLUMNS = ("family", "arm", "env_id", "runs", "updates", "decisions",
+                   "steps_per_decision", "routine_share", "interrupted_share")
+
+
+def counter_rows(groups: dict[str, list[RunRecord]], names: Sequence[str], games: Sequence[str]
+                 ) -> list[tuple[str, str, int, float, float, float, float, float]]:
+    """Per arm and game: (arm, game, runs, and the mean over its runs of updates, decisions,
+    steps per decision, routine share (1 − primitive share) and interrupted share), each mean
+    over the runs that have the counter (NaN where none has)."""
+    rows = []
+    for a in names:
+        for g in games:
+            rs = [r for r in groups.get(a, []) if r.env_id == g]
+            if not rs:
+                continue
+
+            def mean(field: str, rs: list[RunRecord] = rs) -> float:
+                values = [v for v in (run_counter(r, field) for r in rs) if math.isfinite(v)]
+                return float(np.mean(values)) if values else math.nan
+
+            rows.append((a, g, len(rs), mean("updates"), mean("decisions"),
+                         mean("steps_per_decision"), 1.0 - mean("primitive_share"),
+                         mean("interrupted_share")))
+    return rows
 
 
 def _draw_relative(w: Writer, groups: dict[str, list[RunRecord]], games: list[str]) -> None:
