@@ -47,7 +47,7 @@ import routine_gym
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_primitive_env, make_vector_env
 from routine_gym.errors import UsageError
-from routine_gym.interruption import interrupt_routines
+from routine_gym.interruption import PolicyStopRule, interrupt_routines
 from routine_gym.intra_routine import (
     RoutineLogits,
     inner_actions,
@@ -569,10 +569,20 @@ def inner_state_losses(agent: Agent, args: Args, rollout: Rollout, d: int, next_
     return zero, zero
 
 
+def stop_logits(agent: Agent):
+    """The logits `--interrupt`'s stop rule reads at an inner state: the acting policy's."""
+    return lambda obs: agent.logits(agent.encoder(obs))
+
+
 def evaluate_agent(run, agent: Agent, args: Args, demo, library, device: torch.device,
                    **counters: int) -> None:
     """Full games on the evaluation view (Procgen: unseen levels), aligned with the demo the
-    routines came from when there is one; then --extra-evals and --record-demo."""
+    routines came from when there is one; then --extra-evals and --record-demo. With
+    --interrupt they act under the stop rule they were trained under (a rule of their own, so
+    the training rule's counts stay the training's)."""
+    eval_stop_rule = None if args.interrupt is None else PolicyStopRule(
+        stop_logits(agent), args.interrupt, device)
+
     def policy(obs):
         with torch.no_grad():
             action, _, _, _ = agent.get_action_and_value(
@@ -580,7 +590,7 @@ def evaluate_agent(run, agent: Agent, args: Args, demo, library, device: torch.d
         return int(action[0])
 
     run.finish(policy, model=agent, method=args.mode, demo=demo, routines=library,
-               env_kwargs=eval_env_kwargs(args), **counters)
+               env_kwargs=eval_env_kwargs(args), stop_rule=eval_stop_rule, **counters)
 
 
 def main(args: Args) -> None:
@@ -595,8 +605,7 @@ def main(args: Args) -> None:
     envs = make_envs(run, args, library)
     agent, optimizer = make_agent(args, envs, device, library)
     # --interrupt: a stop rule on the acting policy's logits (None: off)
-    stop_rule = interrupt_routines(envs, lambda obs: agent.logits(agent.encoder(obs)),
-                                   args.interrupt, device)
+    stop_rule = interrupt_routines(envs, stop_logits(agent), args.interrupt, device)
     num_routines = len(library) if library is not None else 0
     num_primitives = int(envs.single_action_space.n) - num_routines
     max_len = max(library.lengths) if library is not None else 1

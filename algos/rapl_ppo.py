@@ -62,7 +62,7 @@ import torch.nn as nn
 import routine_gym
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_primitive_env, make_vector_env
-from routine_gym.interruption import interrupt_routines
+from routine_gym.interruption import PolicyStopRule, interrupt_routines
 from routine_gym.intra_routine import (
     RoutineLogits,
     inner_actions,
@@ -677,10 +677,20 @@ def explained_variance(values: np.ndarray, returns: np.ndarray) -> float:
     return np.nan if var_y == 0 else 1 - np.var(y_true - y_pred) / var_y
 
 
+def stop_logits(agent: Agent):
+    """The logits `--interrupt`'s stop rule reads at an inner state: the acting policy's."""
+    return lambda obs: agent.logits(agent.features(obs)[0])
+
+
 def evaluate_agent(run, agent: Agent, args: Args, demo, library, device: torch.device,
                    **counters: int) -> None:
     """Full games on the evaluation view (Procgen: unseen levels), aligned with the demo the
-    routines came from when there is one; then --extra-evals and --record-demo."""
+    routines came from when there is one; then --extra-evals and --record-demo. With
+    --interrupt they act under the stop rule they were trained under (a rule of their own, so
+    the training rule's counts stay the training's)."""
+    eval_stop_rule = None if args.interrupt is None else PolicyStopRule(
+        stop_logits(agent), args.interrupt, device)
+
     def policy(observation):
         with torch.no_grad():
             action, _, _, _ = agent.get_action_and_value(
@@ -688,7 +698,7 @@ def evaluate_agent(run, agent: Agent, args: Args, demo, library, device: torch.d
         return int(action[0])
 
     run.finish(policy, model=agent, method=METHODS[args.mode], demo=demo, routines=library,
-               env_kwargs=eval_env_kwargs(args), **counters)
+               env_kwargs=eval_env_kwargs(args), stop_rule=eval_stop_rule, **counters)
 
 
 def main(args: Args) -> None:
@@ -711,8 +721,7 @@ def main(args: Args) -> None:
     agent = Agent(args.env_id, envs.single_observation_space, num_actions,
                   first_actions).to(device)
     # --interrupt: a stop rule on the acting policy's logits (None: off)
-    stop_rule = interrupt_routines(envs, lambda obs: agent.logits(agent.features(obs)[0]),
-                                   args.interrupt, device)
+    stop_rule = interrupt_routines(envs, stop_logits(agent), args.interrupt, device)
     routines = routine_table(library.routines) if args.intra_coef else None
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5,
                                  foreach=True)

@@ -3,6 +3,7 @@ inner step j ≥ 1, and `--interrupt` of `rapl_a2c.py` and `rapl_ppo.py`."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -305,6 +306,47 @@ def test_interrupt_trains_and_logs_its_interruptions(tmp_path, script, mode):
     shares = [e.value for e in events.Scalars("counters/interrupted_share")]
     assert stops == sorted(stops) and stops[-1] > 0  # a total, and some routines stopped
     assert all(0 <= s <= 1 for s in shares)
+    # The evaluation acts under the rule it was trained under, and counts its own stops.
+    evaluation = json.loads((run / "eval.json").read_text())
+    assert isinstance(evaluation["interruptions"], int) and evaluation["interruptions"] >= 0
+
+
+def _always_stop(num_actions):
+    """A PolicyStopRule whose logits put the last action 5 nats above every other: a routine
+    whose next primitive is not that action stops before it, whatever the margin below 5."""
+    z = torch.zeros(num_actions)
+    z[-1] = 5.0
+    return PolicyStopRule(lambda obs: z.expand(len(obs), num_actions), margin=1.0,
+                          device="cpu")
+
+
+def test_the_evaluation_acts_under_the_stop_rule_and_counts_its_stops():
+    """A policy that always calls routine 0 (NOOP NOOP NOOP on Breakout, |A| = 3): without a
+    rule each call runs 3 steps (fewer only where the episode ends inside it); with a rule that
+    stops before every inner step, each call runs 1 step, so the policy is asked once per
+    primitive step, and every call but the one that ends an episode is stopped: the count is
+    the calls less the episodes."""
+    from routine_gym.plumbing.evaluation import evaluate_policy
+
+    def counting(calls):
+        def policy(obs):
+            calls.append(1)
+            return 3
+        return policy
+
+    routines, free_calls, cut_calls = [[0, 0, 0]], [], []
+    free = evaluate_policy("MinAtar/Breakout-v1", counting(free_calls), 2, seed=7,
+                           routines=routines)
+    rule = _always_stop(4)
+    cut = evaluate_policy("MinAtar/Breakout-v1", counting(cut_calls), 2, seed=7,
+                          routines=routines, stop_rule=rule)
+    assert "interruptions" not in free
+    steps = sum(free["lengths"])
+    assert steps / 3 <= len(free_calls) <= steps / 3 + 2  # one short call per episode at most
+    assert len(cut_calls) == sum(cut["lengths"])
+    assert cut["interruptions"] == len(cut_calls) - 2 == rule.interruptions
+    with pytest.raises(ValueError, match="give the routines too"):
+        evaluate_policy("MinAtar/Breakout-v1", lambda obs: 0, 1, seed=7, stop_rule=rule)
 
 
 @pytest.mark.parametrize("script", ["a2c", "ppo"])

@@ -45,6 +45,7 @@ def record_agent_demo(
     wrap_env: Callable[[gym.Env], gym.Env] | None = None,
     meta: dict[str, Any] | None = None,
     routines: Sequence[Sequence[int]] | None = None,
+    stop_rule: Any = None,
 ) -> Demo:
     """Run a policy for `num_episodes` episodes and keep the best one (as the paper did).
 
@@ -76,6 +77,9 @@ def record_agent_demo(
         meta: extra provenance for `meta` (which policy, trained how long, ...).
         routines: routines the policy may choose (a `RoutineLibrary` or action sequences),
             added as a `RoutineActionWrapper` over the decision marker.
+        stop_rule: the rule that may stop a routine before an inner step
+            (`routine_gym.interruption.StopRule`, the rule a policy trained with `--interrupt`
+            acts under); needs `routines`. None: every routine runs to its end.
     """
     if isinstance(num_episodes, bool) or not isinstance(num_episodes, int) or num_episodes < 1:
         raise ValueError(f"num_episodes needs to be ≥ 1, actual value: {num_episodes!r}")
@@ -92,7 +96,11 @@ def record_agent_demo(
     recorder = DemoRecorder(
         make_env(env_id, **kwargs), record_observations=record_observations, source="agent"
     )
+    if stop_rule is not None and not (routines is not None and len(routines) > 0):
+        raise ValueError("a stop_rule stops routines: give the routines too")
     env = _agent_stack(recorder, wrap_env, routines)
+    if stop_rule is not None:
+        env.set_stop_rule(stop_rule)
     try:
         for k in range(num_episodes):
             obs, _ = env.reset(seed=seed + k)

@@ -56,6 +56,7 @@ def evaluate_policy(
     env_kwargs: dict[str, Any] | None = None,
     max_steps: int | None = None,
     video_folder: str | None = None,
+    stop_rule: Any = None,
 ) -> dict[str, Any]:
     """Run `policy` for `episodes` full episodes; score them and, with a demo, align them.
 
@@ -75,6 +76,9 @@ def evaluate_policy(
             `{video_folder}/eval-episode-{k}.gif`, each frame captioned with the primitive
             action or the routine step it executes (`routine_gym.video`); the env must render
             RGB frames.
+        stop_rule: the stop rule the policy was trained under (`--interrupt`'s
+            `PolicyStopRule`): its routines stop where it says, as in training, and the summary
+            counts `interruptions` (None: every routine runs to its end).
 
     Returns:
         The JSON-able summary of the module docstring.
@@ -111,10 +115,12 @@ def evaluate_policy(
         choices[films.episode].append(action)
         return action
 
+    stopped_before = getattr(stop_rule, "interruptions", 0)
     played = record_agent_demo(
         env_id, policy if video_folder is None else act, num_episodes=episodes, seed=seed,
         env_kwargs=kwargs if video_folder is None else {**kwargs, "render_mode": "rgb_array"},
         keep="all", max_steps=max_steps, progress=False, wrap_env=wrap, routines=routines,
+        stop_rule=stop_rule,
     )
     if video_folder is not None:
         _write_videos(video_folder, played, films, choices, routines, env_id)
@@ -131,6 +137,8 @@ def evaluate_policy(
         "std_return": float(np.std(returns)),
         "env_kwargs": kwargs,
     }
+    if stop_rule is not None and hasattr(stop_rule, "interruptions"):
+        summary["interruptions"] = int(stop_rule.interruptions - stopped_before)
     if demo is not None:
         # ι_d and ι_t: the demonstrator's and the agent's decided primitive actions (a routine
         # as its executed primitives), without the steps the preprocessing injected into either.

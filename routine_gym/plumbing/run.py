@@ -323,7 +323,7 @@ class Run:
     def finish(self, policy: Callable[..., int], *, model: Any, method: str,
                demo: Any = None, routines: Any = None, env_kwargs: dict[str, Any] | None = None,
                max_steps: int | None = None, summary: dict[str, Any] | None = None,
-               **counters: int) -> dict[str, Any] | None:
+               stop_rule: Any = None, **counters: int) -> dict[str, Any] | None:
         """End the run: the last checkpoint (with `--checkpoint-every`), the model
         (`--save-model`), the evaluation in `eval.json` (`--eval-episodes`; with
         `--capture-video` its episodes filmed into `{run}/videos/`), the evaluations of
@@ -340,6 +340,8 @@ class Run:
             method: the method's name in `eval.json`.
             summary: what the script adds to `eval.json` after `method` and `global_step`
                 (the step counter's final value).
+            stop_rule: the stop rule the policy was trained under (`--interrupt`): every
+                evaluation and `--record-demo` acts under it too, as training did (None: none).
             counters: the final values of `resume`'s counters.
 
         Returns:
@@ -363,7 +365,7 @@ class Run:
                                      seed=eval_seed(args.seed, getattr(args, "seed_stride", 1)),
                                      demo=demo, routines=routines,
                                      env_kwargs=env_kwargs, max_steps=max_steps,
-                                     video_folder=videos)
+                                     video_folder=videos, stop_rule=stop_rule)
             result.update(method=method, global_step=step, **(summary or {}))
             save_evaluation(result, self.path, self.writer, step)
             for levels in getattr(args, "extra_evals", ()):
@@ -371,11 +373,11 @@ class Run:
                                         seed=eval_seed(args.seed, getattr(args, "seed_stride", 1)),
                                         routines=routines,
                                         env_kwargs=level_env_kwargs(args, levels),
-                                        max_steps=max_steps)
+                                        max_steps=max_steps, stop_rule=stop_rule)
                 other.update(method=method, global_step=step, **(summary or {}), levels=levels)
                 save_evaluation(other, self.path, self.writer, step, name=f"eval-{levels}")
         if getattr(args, "record_demo", None):
-            self._record_demo(policy, routines, step)
+            self._record_demo(policy, routines, step, stop_rule)
         self.writer.close()
         if self.tracking is not None:
             self.tracking.finish()
@@ -384,7 +386,8 @@ class Run:
             self.release = None
         return result
 
-    def _record_demo(self, policy: Callable[..., int], routines: Any, step: int) -> None:
+    def _record_demo(self, policy: Callable[..., int], routines: Any, step: int,
+                     stop_rule: Any = None) -> None:
         """`--record-demo`: the best of `--demo-episodes` games of the trained agent, on the
         training levels, saved without observations."""
         import gymnasium as gym
@@ -404,7 +407,7 @@ class Run:
             args.env_id, policy, num_episodes=args.demo_episodes,
             seed=demo_seed(args.seed, getattr(args, "seed_stride", 1)),
             env_kwargs={**default_env_kwargs(args.env_id), **train_env_kwargs(args)},
-            wrap_env=wrap, routines=routines,
+            wrap_env=wrap, routines=routines, stop_rule=stop_rule,
             meta={"trained_steps": step, "command": " ".join(sys.argv),
                   "mode": getattr(args, "mode", None), "run": self.name},
         )
