@@ -641,6 +641,8 @@ def optimise(agent: Agent, optimizer: torch.optim.Optimizer, args: Args, rollout
                 intra_loss = intra_loss_of(args, inner_logprob, i_logprobs[mb_inner],
                                            i_returns[mb_inner] - i_values[mb_inner])
                 loss = loss + args.intra_coef * intra_loss
+            else:  # logged as the last minibatch's: none here, not the one before's
+                intra_loss = torch.zeros((), device=device)
 
             optimizer.zero_grad()
             loss.backward()
