@@ -65,4 +65,8 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from common import children_die_with_me  # the house rule of bench/ (it starts none)
+
+    children_die_with_me()
     main()
