@@ -29,6 +29,7 @@ clock below them (`equal_frames_curves.png`: updates made against frames, per ar
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 
 import numpy as np
@@ -289,7 +290,10 @@ def _draw_curves(w: Writer, groups: dict[str, list[RunRecord]], games: list[str]
             if not curves:
                 continue
             x = curves[0][0]
-            top.plot(x, np.nanmean([c[1] for c in curves], axis=0), label=a,
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # a bin no run has: NaN
+                mean = np.nanmean([c[1] for c in curves], axis=0)
+            top.plot(x, mean, label=a,
                      color=PALETTE[i % len(PALETTE)], linewidth=1.2)
             updates = mean_bins(runs, "updates")
             if updates is not None and len(updates) == len(x):
