@@ -6,18 +6,13 @@ out by hand and the seeds still missing; bad input is refused with a one-line er
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
-from pathlib import Path
+from functools import partial
 
-ROOT = Path(__file__).resolve().parent.parent
-BENCH = ROOT / "bench" / "bench_baselines.py"
+from bench_runner import run_bench
+
 GAME = "MinAtar/Breakout-v1"
 
-
-def run(*words, cwd):
-    return subprocess.run([sys.executable, str(BENCH), *map(str, words)], capture_output=True,
-                          text=True, timeout=300, cwd=cwd)
+run = partial(run_bench, "bench_baselines.py")  # the script as a user runs it
 
 
 def row(report: str, method: str) -> list[str]:

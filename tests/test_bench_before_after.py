@@ -5,17 +5,14 @@ bad input is refused with a one-line error."""
 from __future__ import annotations
 
 import re
-import subprocess
-import sys
+from functools import partial
 from pathlib import Path
 
+from bench_runner import run_bench
+
 ROOT = Path(__file__).resolve().parent.parent
-BENCH = ROOT / "bench" / "bench_before_after.py"
 
-
-def run(*words, cwd=None):
-    return subprocess.run([sys.executable, str(BENCH), *map(str, words)], capture_output=True,
-                          text=True, timeout=300, cwd=cwd)
+run = partial(run_bench, "bench_before_after.py")  # the script as a user runs it
 
 
 def test_the_benchmark_writes_one_row_per_run_asked_for(tmp_path):

@@ -6,18 +6,12 @@ paper's BC numbers; bad input is refused with a one-line error before any run st
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
-from pathlib import Path
+from functools import partial
 from statistics import mean, stdev
 
-ROOT = Path(__file__).resolve().parent.parent
-BENCH = ROOT / "bench" / "bench_imitation.py"
+from bench_runner import run_bench
 
-
-def run(*words, cwd):
-    return subprocess.run([sys.executable, str(BENCH), *map(str, words)], capture_output=True,
-                          text=True, timeout=300, cwd=cwd)
+run = partial(run_bench, "bench_imitation.py")  # the script as a user runs it
 
 
 def test_two_seeds_of_bc_give_the_mean_and_sample_std_of_their_eval_files(tmp_path):

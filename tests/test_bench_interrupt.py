@@ -7,17 +7,14 @@ any run starts."""
 from __future__ import annotations
 
 import re
-import subprocess
-import sys
+from functools import partial
 from pathlib import Path
 
+from bench_runner import run_bench
+
 ROOT = Path(__file__).resolve().parent.parent
-BENCH = ROOT / "bench" / "bench_interrupt.py"
 
-
-def run(*words, cwd):
-    return subprocess.run([sys.executable, str(BENCH), *map(str, words)], capture_output=True,
-                          text=True, timeout=300, cwd=cwd)
+run = partial(run_bench, "bench_interrupt.py")  # the script as a user runs it
 
 
 def test_one_round_writes_a_row_per_configuration_and_the_ratios(tmp_path):
