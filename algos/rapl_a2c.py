@@ -47,7 +47,7 @@ import routine_gym
 from routine_gym.envs import profile_for
 from routine_gym.envs.factory import make_primitive_env, make_vector_env
 from routine_gym.errors import UsageError
-from routine_gym.interruption import PolicyStopRule, interrupt_routines
+from routine_gym.interruption import interrupt_routines, policy_stop_rule
 from routine_gym.intra_routine import (
     RoutineLogits,
     inner_actions,
@@ -580,8 +580,7 @@ def evaluate_agent(run, agent: Agent, args: Args, demo, library, device: torch.d
     routines came from when there is one; then --extra-evals and --record-demo. With
     --interrupt they act under the stop rule they were trained under (a rule of their own, so
     the training rule's counts stay the training's)."""
-    eval_stop_rule = None if args.interrupt is None else PolicyStopRule(
-        stop_logits(agent), args.interrupt, device)
+    eval_stop_rule = policy_stop_rule(stop_logits(agent), args.interrupt, device)
 
     def policy(obs):
         with torch.no_grad():

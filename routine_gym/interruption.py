@@ -29,7 +29,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["PolicyStopRule", "StopRule", "interrupt_routines", "set_stop_rule", "should_interrupt"]
+__all__ = ["PolicyStopRule", "StopRule", "interrupt_routines", "policy_stop_rule", "set_stop_rule",
+           "should_interrupt"]
 
 #: A stop rule: (observations [k, ...] of k envs inside a routine, their routines' next
 #: primitive actions [k]) -> a bool mask [k], True where the routine stops before that action.
@@ -143,6 +144,14 @@ def set_stop_rule(envs: Any, rule: StopRule | None) -> None:
                      "SyncVectorEnv of RoutineActionWrapper envs have one)")
 
 
+def policy_stop_rule(logits: Callable[[Any], Any], margin: float | None,
+                     device: Any) -> PolicyStopRule | None:
+    """`--interrupt MARGIN`'s rule on the acting policy's `logits`, None when `margin` is None
+    (every routine runs to its end): the training envs' (`interrupt_routines`) and the
+    evaluation's, each a rule of its own with its own counts."""
+    return None if margin is None else PolicyStopRule(logits, margin, device)
+
+
 def interrupt_routines(envs: Any, logits: Callable[[Any], Any], margin: float | None,
                        device: Any) -> PolicyStopRule | None:
     """`--interrupt MARGIN`: give the training envs a `PolicyStopRule` on the acting policy's
@@ -151,11 +160,11 @@ def interrupt_routines(envs: Any, logits: Callable[[Any], Any], margin: float | 
     Raises:
         UsageError: the envs cannot ask a rule (`set_stop_rule`), named as `--interrupt`'s.
     """
-    if margin is None:
+    rule = policy_stop_rule(logits, margin, device)
+    if rule is None:
         return None
     from routine_gym.errors import UsageError
 
-    rule = PolicyStopRule(logits, margin, device)
     try:
         set_stop_rule(envs, rule)
     except ValueError as exc:

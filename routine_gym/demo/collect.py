@@ -96,11 +96,7 @@ def record_agent_demo(
     recorder = DemoRecorder(
         make_env(env_id, **kwargs), record_observations=record_observations, source="agent"
     )
-    if stop_rule is not None and not (routines is not None and len(routines) > 0):
-        raise ValueError("a stop_rule stops routines: give the routines too")
-    env = _agent_stack(recorder, wrap_env, routines)
-    if stop_rule is not None:
-        env.set_stop_rule(stop_rule)
+    env = _agent_stack(recorder, wrap_env, routines, stop_rule)
     try:
         for k in range(num_episodes):
             obs, _ = env.reset(seed=seed + k)

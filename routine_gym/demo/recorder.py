@@ -372,10 +372,15 @@ def _agent_stack(
     recorder: DemoRecorder,
     wrap_env: Callable[[gym.Env], gym.Env] | None,
     routines: Sequence[Sequence[int]] | None,
+    stop_rule: Any = None,
 ) -> gym.Env:
-    """`RoutineActionWrapper(DecisionMarker(wrap_env(recorder)))`, checked."""
+    """`RoutineActionWrapper(DecisionMarker(wrap_env(recorder)))`, checked; the routine
+    wrapper asks `stop_rule` before each inner step (`set_stop_rule`) when one is given."""
     from routine_gym.wrapper import RoutineActionWrapper
 
+    has_routines = routines is not None and len(routines) > 0
+    if stop_rule is not None and not has_routines:
+        raise ValueError("a stop_rule stops routines: give the routines too")
     env = wrap_env(recorder) if wrap_env is not None else recorder
     inner = env
     while isinstance(inner, gym.Wrapper) and inner is not recorder:
@@ -386,6 +391,7 @@ def _agent_stack(
             )
         inner = inner.env
     env = DecisionMarker(env)
-    if routines is not None and len(routines) > 0:
+    if has_routines:
         env = RoutineActionWrapper(env, routines, record_observations=False)
+        env.set_stop_rule(stop_rule)
     return env
