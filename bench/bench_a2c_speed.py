@@ -476,6 +476,8 @@ def sb3_worker(args) -> None:
                     seed=1, verbose=0)
         optimizer, setup = "RMSpropTFLike(eps=1e-5)", None
     timer = sb3_timer(args.warmup, end_at)
+    from stable_baselines3.common.logger import Logger
+    model.set_logger(Logger(None, []))  # no output; SB3's default makes a folder /tmp/SB3-…
     model.learn(total_timesteps=end_at + args.num_envs * 5, callback=timer)
     env.close()
     assert timer.start is not None and timer.end is not None

@@ -420,8 +420,9 @@ def test_vector_env_same_step_autoreset(vector_cls):
 
 
 @pytest.mark.slow
-def test_stable_baselines3_a2c_trains_through_the_wrapper():
+def test_stable_baselines3_a2c_trains_through_the_wrapper(tmp_path, monkeypatch):
     torch = pytest.importorskip("torch")
+    monkeypatch.setenv("SB3_LOGDIR", str(tmp_path))  # SB3's logger makes a folder, /tmp/SB3-… else
     from stable_baselines3 import A2C
 
     env = RoutineActionWrapper(
