@@ -107,6 +107,35 @@ def test_the_report_by_hand(tmp_path):
     assert (tmp_path / "equal_frames.png").stat().st_size > 10_000
 
 
+
+def test_a_goal_interval_near_one_half_is_read_again_with_more_resamples(tmp_path, monkeypatch):
+    """Where an arm meets the rest of the goal and its interval's lower end is near 0.5, the goal
+    reads the interval again at GOAL_REPS resamples and says so; an arm far from the edge or
+    short of the rest of the goal is read once. (The edge is widened to 1 and the resamples cut
+    to 300 so the hand data, P(all > A2C) = 1 [1, 1], takes the path in a second.)"""
+    calls = []
+    real = equal_frames.probability_of_improvement
+
+    def counting(x, y, reps, seed):
+        calls.append(reps)
+        return real(x, y, reps=reps, seed=seed)
+
+    monkeypatch.setattr(equal_frames, "probability_of_improvement", counting)
+    monkeypatch.setattr(equal_frames, "GOAL_EDGE", 1.0)
+    monkeypatch.setattr(equal_frames, "GOAL_REPS", 300)
+    text = "\n".join(equal_frames.section(Writer(tmp_path, references={}, reps=200, seed=0),
+                                          _runs()))
+    # RAPL-A2C and + intra-routine (0 of 3 games) once each; + all at 200, then at 300.
+    assert sorted(calls) == [200, 200, 200, 300]
+    assert "| RAPL-A2C + all | 3 of 3 | 1.000 [1.000, 1.000] (300 resamples) | **yes** |" in text
+    assert ("RAPL-A2C + all: the interval's lower end lay within 1.0 of 0.5 at 200 resamples"
+            in text)
+    monkeypatch.setattr(equal_frames, "GOAL_EDGE", 0.02)  # 1 − 0.5 is far from the edge
+    calls.clear()
+    text = "\n".join(equal_frames.section(Writer(tmp_path, references={}, reps=200, seed=0),
+                                          _runs()))
+    assert calls == [200, 200, 200] and "resamples" not in text.split("The goal")[-1]
+
 def test_relative_bar_by_hand():
     """The figure's bar and error bar: S_X = (3, 5, 7) mean 5, se 2/√3; S_B = (8, 12) mean 10,
     se 2: −50 % ± 100·√(4/3 + 4)/10 = ± 23.09 %; one seed of X has se 0; no baseline or a
