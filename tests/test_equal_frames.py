@@ -107,7 +107,6 @@ def test_the_report_by_hand(tmp_path):
     assert (tmp_path / "equal_frames.png").stat().st_size > 10_000
 
 
-
 def test_a_goal_interval_near_one_half_is_read_again_with_more_resamples(tmp_path, monkeypatch):
     """Where an arm meets the rest of the goal and its interval's lower end is near 0.5, the goal
     reads the interval again at GOAL_REPS resamples and says so; an arm far from the edge or
@@ -135,6 +134,7 @@ def test_a_goal_interval_near_one_half_is_read_again_with_more_resamples(tmp_pat
     text = "\n".join(equal_frames.section(Writer(tmp_path, references={}, reps=200, seed=0),
                                           _runs()))
     assert calls == [200, 200, 200] and "resamples" not in text.split("The goal")[-1]
+
 
 def test_relative_bar_by_hand():
     """The figure's bar and error bar: S_X = (3, 5, 7) mean 5, se 2/√3; S_B = (8, 12) mean 10,

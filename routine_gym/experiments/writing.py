@@ -76,9 +76,10 @@ def pct(x: float, digits: int = 1) -> str:
     return text if text in ("–", "n/a") else f"{text} %"
 
 
-def interval(estimate: tuple[float, float, float] | None, percent: bool = True) -> str:
-    """`(point, lo, hi)` as `point [lo, hi]` (in % when `percent`); – for none, n/a for a
-    non-finite one."""
+def interval(estimate: tuple[float, float, float] | None, percent: bool = True,
+             digits: int = 2) -> str:
+    """`(point, lo, hi)` as `point [lo, hi]` (in % when `percent`, else with `digits`
+    decimals); – for none, n/a for a non-finite one."""
     if estimate is None:
         return "–"
     point, lo, hi = estimate
@@ -86,4 +87,4 @@ def interval(estimate: tuple[float, float, float] | None, percent: bool = True) 
         return "n/a"
     if percent:
         return f"{100 * point:.1f} % [{100 * lo:.1f}, {100 * hi:.1f}]"
-    return f"{point:.2f} [{lo:.2f}, {hi:.2f}]"
+    return f"{point:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
