@@ -15,8 +15,11 @@ from routine_gym.experiments.paper.equal_frames import (
     ALL,
     MECHANISMS,
     arms,
+    carried,
     gap_closed,
+    leave_one_out_arms,
     mechanism_flags,
+    without,
 )
 from routine_gym.experiments.registry import available, build
 from routine_gym.experiments.results import RunRecord
@@ -30,11 +33,13 @@ def test_every_rapl_arm_is_rapl_as_published_plus_its_mechanism_alone():
                if e.role == "main" and e.seed == 1]
     by_arm = {equal_frames.label(_record(e.method, e.env_id, e.seed, 0.0, e.variant)): e
               for e in entries}
-    assert set(by_arm) == set(arms("A2C")) | set(arms("PPO"))
-    assert len(by_arm) == 2 * (2 + len(MECHANISMS) + 1) == 14
+    assert set(by_arm) == set(arms("A2C")) | set(arms("PPO")) | set(leave_one_out_arms("A2C"))
+    assert len(by_arm) == 2 * (2 + len(MECHANISMS) + 1) + len(MECHANISMS) == 18
+    assert not leave_one_out_arms("PPO")
     for rapl in ("RAPL-A2C", "RAPL-PPO"):
         published = by_arm[rapl].run
-        for mechanism in (*MECHANISMS, ALL):
+        left_out = [without(m) for m in MECHANISMS] if rapl == "RAPL-A2C" else []
+        for mechanism in (*MECHANISMS, ALL, *left_out):
             run = by_arm[f"{rapl} + {mechanism}"].run
             added = {k: v for k, v in run.flags if k not in dict(published.flags)}
             assert added == dict(mechanism_flags(mechanism))
@@ -43,12 +48,15 @@ def test_every_rapl_arm_is_rapl_as_published_plus_its_mechanism_alone():
             assert run.derived == published.derived
     assert dict(mechanism_flags(ALL)) == {"rollout-unit": "steps", "intra-coef": 1.0,
                                           "interrupt": 1.0, "routine-logit": "first-action"}
+    assert dict(mechanism_flags("all but interruption")) == {
+        "rollout-unit": "steps", "intra-coef": 1.0, "routine-logit": "first-action"}
 
 
 def test_five_seeds_per_arm_and_game_at_both_fair_budgets():
-    for budget in ("fair", "fair-long"):
+    # fair (10^6) adds the A2C family's four leave-one-out arms; fair-long (10^7) has none
+    for budget, num_arms in (("fair", 18), ("fair-long", 14)):
         main = [e for e in build("equal-frames", budget) if e.role == "main"]
-        assert len(main) == 14 * 5 * 5  # arms × games × seeds
+        assert len(main) == num_arms * 5 * 5  # arms × games × seeds
         assert {e.seed for e in main} == set(range(1, 6))
 
 
@@ -63,6 +71,14 @@ def test_gap_closed_by_hand():
     assert gap_closed(6.0, 6.0, 12.0) == 0.0
     assert gap_closed(3.0, 6.0, 12.0) == -0.5
     assert math.isnan(gap_closed(9.0, 12.0, 12.0))  # no gap to close
+
+
+def test_carried_by_hand():
+    # RAPL 6, all four 21: a gain of 15. Without a mechanism 20: it carries 1 of the 15.
+    assert carried(21.0, 20.0, 6.0) == pytest.approx(1 / 15)
+    assert carried(21.0, 6.0, 6.0) == 1.0  # without it, the gain is gone
+    assert carried(21.0, 24.0, 6.0) == pytest.approx(-0.2)  # better without it
+    assert math.isnan(carried(6.0, 5.0, 6.0))  # all four not above RAPL: no gain to share
 
 
 def _record(method, env_id, seed, score, variant=None):
@@ -182,3 +198,41 @@ def test_the_counters_table_by_hand(tmp_path):
     stopped = next(r for r in rows if r[1] == "RAPL-A2C + interruption")
     assert float(stopped[4]) == 200 and float(stopped[7]) == pytest.approx(0.3)
     assert float(stopped[8]) == pytest.approx(0.5)
+
+
+def test_the_leave_one_out_table_by_hand(tmp_path):
+    """On three games: A2C 10, 12, 14; RAPL-A2C 4, 6, 8 (mean 6); all four 20, 21, 22 (mean 21,
+    a gain of 15 over RAPL); all but equal updates 5, 6, 7 (mean 6: it carries all of it);
+    all but interruption 19, 20, 21 (mean 20: it carries 1 of the 15)."""
+    runs = []
+    for env_id in GAMES:
+        for seed, (a2c, rapl, every, no_updates, no_stop) in enumerate(
+                [(10, 4, 20, 5, 19), (12, 6, 21, 6, 20), (14, 8, 22, 7, 21)], start=1):
+            runs += [_record("A2C", env_id, seed, a2c), _record("RAPL-A2C", env_id, seed, rapl),
+                     _record("RAPL-A2C", env_id, seed, every, {"mechanism": ALL}),
+                     _record("RAPL-A2C", env_id, seed, no_updates,
+                             {"mechanism": without("equal updates")}),
+                     _record("RAPL-A2C", env_id, seed, no_stop,
+                             {"mechanism": without("interruption")})]
+    w = Writer(tmp_path, references={}, reps=200, seed=0)
+    text = "\n".join(equal_frames.section(w, runs))
+    rows = {(r[1], r[2]): r for r in csv.reader(
+        (tmp_path / "equal_frames_a2c_leave_one_out.csv").read_text().splitlines()[1:])}
+    assert len(rows) == 2 * 3  # two arms with runs, three games
+    no_stop = rows["RAPL-A2C + all but interruption", "MinAtar/Freeway-v1"]
+    assert float(no_stop[4]) == 20.0 and float(no_stop[6]) == pytest.approx(1 / 15)
+    assert float(rows["RAPL-A2C + all but equal updates", "MinAtar/Seaquest-v1"][6]) == 1.0
+    # Welch against all four, by hand: Δ = 6 − 21 = −15, se = √(1/3 + 1/3), t = −18.4, ν = 4.
+    assert "| RAPL-A2C + all but equal updates | Freeway | 3 | 6.00 ± 0.58 | worse (Δ -15.00" \
+        in text
+    assert "| 6.7 % |" in text and "| 100.0 % |" in text  # carried, as shown
+    # P(X > all four) per game, by hand: of the 9 pairs (19|20|21 against 20|21|22), 21 > 20
+    # wins one and the ties 20 = 20 and 21 = 21 count a half each: 2/9 = 0.22, on every game
+    # (the resamples of the runs spread its interval); every run of it beats every A2C run: 1.
+    (line,) = [ln for ln in text.splitlines() if ln.startswith("| RAPL-A2C + all but interr")
+               and "[" in ln]
+    above_a2c, above_all = line.rstrip(" |").split(" | ")[-2:]
+    assert above_a2c == "1.00 [1.00, 1.00]" and above_all.startswith("0.22 [")
+    # A diagnosis, not a candidate: the goal table does not list the leave-one-out arms.
+    goal = [ln for ln in text.splitlines() if " of 3 | " in ln]
+    assert goal and not [ln for ln in goal if "all but" in ln]
