@@ -275,3 +275,31 @@ def test_a_fair_sweep_tunes_then_runs_the_diagnosis_and_reports_it(tmp_path):
     assert "## Demos" in report and "`demos/MinAtar-Breakout-v1.npz` | current |" in report
     rows = (out / "report" / "tune.csv").read_text().splitlines()
     assert len(rows) == 1 + 3 * 2  # A2C, RAPL-A2C, MacroAction × 2 grid points
+
+
+def test_equal_frames_as_a_user_runs_every_arm_and_reports_the_leave_one_out(tmp_path):
+    """As a user: the smoke-fair equal-frames experiment on one seed (its tuning, then every
+    arm of both families and the A2C family's leave-one-out arms), then the report."""
+    out = tmp_path / "sweep"
+    proc = user("routine-gym", "experiment", "run", "equal-frames", "--budget", "smoke-fair",
+                "--out", out, "--jobs", "2", "--seeds", "1", cwd=tmp_path, timeout=600)
+    assert proc.returncode == 0, (proc.stdout[-2000:], proc.stderr[-2000:])
+    printed = proc.stdout + proc.stderr
+    # 4 tuned methods × 2 grid points, then 18 arms: 14 of both families, 4 leave one out
+    assert "runs 26/26 done, 0 running, 0 failed" in printed
+    configs = [json.loads(c.read_text()) for c in (out / "runs").glob("*/config.json")]
+    # the A2C family's arm without interruption: the other three mechanisms, no stop rule,
+    # and RAPL-A2C's tuned settings (derived from its tune runs)
+    (no_stop,) = [c for c in configs if c["script"] == "rapl_a2c"
+                  and c["flags"].get("intra-coef") == 1.0 and "interrupt" not in c["flags"]
+                  and c["flags"].get("rollout-unit") == "steps"
+                  and c["flags"].get("routine-logit") == "first-action"]
+    assert no_stop["flags"]["seed"] == 1 and no_stop["derived"][0][0] == "tuned"
+    proc = user("routine-gym", "experiment", "report", out, cwd=tmp_path, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    report = (out / "report" / "report.md").read_text()
+    assert "#### Leave one out: which mechanisms carry RAPL-A2C + all" in report
+    assert "| RAPL-A2C + all but interruption | Breakout | 1 |" in report
+    for name in ("equal_frames.png", "equal_frames_curves.png",
+                 "equal_frames_a2c_leave_one_out.csv", "equal_frames_ppo_counters.csv"):
+        assert (out / "report" / name).stat().st_size > 0, name
