@@ -1,0 +1,208 @@
+"""Probe: is the fair tuning grid's top learning rate a cap?
+
+    python bench/probe_lr_cap.py bench/results/experiments/fair --out /tmp/lr-cap --jobs 2 \\
+        --report bench/results/lr_cap_probe.md
+
+The fair protocol's grid (`specs.TUNE_GRIDS`) is each family's default learning rate, half and
+twice it, annealed and constant; at `fair` the top (twice the default) was chosen in 27 of 30
+method-game cells. If a higher rate were better still, the tuned baselines would sit below
+their best, and the comparison with RAPL would rest on a cap that may favour either arm. This
+probe trains each method of `METHODS` once more per tune run at the top constant point, with
+the learning rate doubled again (4× the default) and every other flag of that tune run (its
+tuning seed, budget, demo, evaluation), and tabulates, per method and game, the mean final
+score over the tuning seeds of every constant point of the grid and of the probe's point:
+where the probe's is the highest, the grid capped that method there.
+
+Runs go into `OUT/runs/KEY-x2/` (KEY the tune run's key), each as a sweep runs it
+(`backends.execute_run`: its log, checkpoints, `result.json`); run it again to resume (finished
+runs are read, killed ones resume from their checkpoints). The probe is not part of the
+protocol: no sweep reads its runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from pathlib import Path
+
+from common import base_machine_info, children_die_with_me
+
+REPO = Path(__file__).resolve().parent.parent
+#: The methods probed: both families' baseline and RAPL as published.
+METHODS = ("A2C", "RAPL-A2C", "PPO", "RAPL-PPO")
+#: How much the probe raises the grid's top learning rate.
+FACTOR = 2.0
+
+
+def fail(message: str) -> None:
+    print(f"probe_lr_cap.py: error: {message}", file=sys.stderr)
+    raise SystemExit(2)
+
+
+def read_json(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        fail(f"cannot read {path}: {exc}")
+        raise  # unreachable: fail exits
+
+
+def tune_runs(sweep: Path) -> list[dict]:
+    """The tune experiment's runs of `METHODS` in `sweep` that finished (a `result.json`),
+    each with its `config` and `score` (mean final evaluation return)."""
+    manifest = sweep / "tune.json"
+    if not manifest.is_file():
+        fail(f"{sweep} has no tune.json: give a sweep folder of the tune experiment")
+    found = []
+    for run in read_json(manifest)["runs"]:
+        result = sweep / "runs" / run["key"] / "result.json"
+        if run["method"] in METHODS and result.is_file():
+            config = read_json(sweep / "runs" / run["key"] / "config.json")
+            found.append({**run, "config": config,
+                          "score": float(read_json(result)["eval"]["mean_return"])})
+    if not found:
+        fail(f"{sweep} has no finished tune run of {', '.join(METHODS)}")
+    return found
+
+
+def top_constant(runs: list[dict]) -> dict[str, float]:
+    """Each method's highest constant learning rate among its tune runs (the grid's top)."""
+    top: dict[str, float] = {}
+    for run in runs:
+        if run["variant"].get("anneal_lr") is False:
+            lr = float(run["variant"]["learning_rate"])
+            top[run["method"]] = max(top.get(run["method"], 0.0), lr)
+    return top
+
+
+def probe_configs(runs: list[dict]) -> list[dict]:
+    """A config per tune run at its method's top constant point: the same flags, the learning
+    rate times `FACTOR`, under the key `KEY-x2`."""
+    top = top_constant(runs)
+    configs = []
+    for run in runs:
+        variant = run["variant"]
+        if variant.get("anneal_lr") is False and float(variant["learning_rate"]) == top.get(
+                run["method"]):
+            config = json.loads(json.dumps(run["config"]))
+            config["flags"]["learning-rate"] = FACTOR * top[run["method"]]
+            config["key"] = f"{run['key']}-x{FACTOR:g}"
+            config.pop("derived", None)
+            configs.append({"config": config, "method": run["method"], "env_id": run["env_id"],
+                            "seed": run["config"]["flags"]["seed"]})
+    return sorted(configs, key=lambda c: METHODS.index(c["method"]))  # the A2C family first
+
+
+def run_probes(probes: list[dict], runs_dir: Path, jobs: int) -> dict[str, float]:
+    """Run (or resume) every probe not finished; `{key: score}` of all of them."""
+    from routine_gym.experiments.backends import execute_run
+
+    scores, todo = {}, []
+    for probe in probes:
+        folder = runs_dir / probe["config"]["key"]
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / "config.json").write_text(json.dumps(probe["config"], indent=2) + "\n")
+        if (folder / "result.json").is_file():
+            scores[probe["config"]["key"]] = float(
+                read_json(folder / "result.json")["eval"]["mean_return"])
+        else:
+            todo.append(probe)
+    print(f"[probe] {len(probes)} runs, {len(probes) - len(todo)} finished before, "
+          f"{len(todo)} to run, {jobs} at a time, into {runs_dir}", flush=True)
+    start = time.time()
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        futures = {pool.submit(execute_run, p["config"], str(runs_dir)): p for p in todo}
+        for done, future in enumerate(as_completed(futures), start=1):
+            probe, result = futures[future], future.result()
+            if "error" in result:
+                fail(f"run {probe['config']['key']} ({probe['method']} on {probe['env_id']}) "
+                     f"failed: {result['error']}")
+            scores[probe["config"]["key"]] = float(result["eval"]["mean_return"])
+            print(f"[probe] {done}/{len(todo)} {probe['method']} {probe['env_id']} seed "
+                  f"{probe['seed']}: {scores[probe['config']['key']]:.2f} "
+                  f"({(time.time() - start) / 60:.0f} min)", flush=True)
+    return scores
+
+
+def game(env_id: str) -> str:
+    """`MinAtar/Freeway-v1` as `Freeway`."""
+    return env_id.split("/")[-1].rsplit("-v", 1)[0]
+
+
+def point_name(lr: float, anneal: bool) -> str:
+    """A grid point as the report shows it: `0.0014 constant`."""
+    return f"{lr:g} {'annealed' if anneal else 'constant'}"
+
+
+def table(runs: list[dict], probes: list[dict], scores: dict[str, float]) -> tuple[list[str], int]:
+    """The report's rows, per method and game: the grid's best point and its mean final score
+    over the tuning seeds, the top constant point's, the probe's, and whether the probe's is
+    the highest of all; and in how many cells it is."""
+    cells: dict[tuple[str, str], dict[str, list[float]]] = {}
+    for run in runs:
+        name = point_name(float(run["variant"]["learning_rate"]), run["variant"]["anneal_lr"])
+        cells.setdefault((run["method"], run["env_id"]), {}).setdefault(name, []).append(
+            run["score"])
+    probed: dict[tuple[str, str], list[float]] = {}
+    for probe in probes:
+        probed.setdefault((probe["method"], probe["env_id"]), []).append(
+            scores[probe["config"]["key"]])
+    top = top_constant(runs)
+    rows, wins = [], 0
+    for (method, env_id), cell in sorted(cells.items()):
+        means = {name: statistics.fmean(v) for name, v in cell.items()}
+        best = max(means, key=means.get)
+        top_name = point_name(top[method], False) if method in top else None
+        probe = probed.get((method, env_id))
+        won = probe is not None and statistics.fmean(probe) > means[best]
+        wins += won
+        rows.append(
+            f"| {method} | {game(env_id)} | {means[best]:.2f} ({best}) | "
+            + (f"{means[top_name]:.2f}" if top_name in means else "–") + " | "
+            + (f"{statistics.fmean(probe):.2f} ({FACTOR * top[method]:g} constant)"
+               if probe else "–")
+            + f" | {'**yes**' if won else 'no'} |")
+    header = ["| method | game | the grid's best (its point) | the top constant point | "
+              "the probe | the probe beats the grid |", "|---|---|---:|---:|---:|---|"]
+    return header + rows, wins
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("sweep", type=Path, help="a sweep folder with the tune experiment")
+    parser.add_argument("--out", type=Path, required=True, help="where the probe's runs go")
+    parser.add_argument("--jobs", type=int, default=2, help="runs at a time (2)")
+    parser.add_argument("--report", type=Path, default=None,
+                        help="the markdown report (default: OUT/lr_cap_probe.md)")
+    args = parser.parse_args()
+    if args.jobs < 1:
+        fail(f"--jobs must be at least 1, not {args.jobs}")
+    children_die_with_me()
+    runs = tune_runs(args.sweep)
+    probes = probe_configs(runs)
+    scores = run_probes(probes, args.out / "runs", args.jobs)
+    rows, wins = table(runs, probes, scores)
+    info = base_machine_info()
+    seeds = sorted({p["seed"] for p in probes})
+    text = "\n".join([
+        "# Is the fair tuning grid's top learning rate a cap?", "",
+        f"`python bench/probe_lr_cap.py {args.sweep} --out OUT --jobs {args.jobs}` "
+        f"({info['date']}, {info['cpu']}). Each method's tune runs at the grid's top constant "
+        f"point, run again with the learning rate times {FACTOR:g} and every other flag the "
+        f"same (tuning seeds {', '.join(map(str, seeds))}, the sweep's budget and demos). Mean "
+        "final score over the tuning seeds: the grid's best point (the tune experiment's "
+        "choice), its top constant point (the one the probe doubles) and the probe.", "",
+        *rows, "",
+        f"The probe beats every grid point in {wins} of {len(rows) - 2} method-game cells.", ""])
+    report = args.report or args.out / "lr_cap_probe.md"
+    report.parent.mkdir(parents=True, exist_ok=True)
+    report.write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
