@@ -81,6 +81,14 @@ def test_carried_by_hand():
     assert math.isnan(carried(6.0, 5.0, 6.0))  # all four not above RAPL: no gain to share
 
 
+def test_carried_bar_by_hand():
+    # all four 20, 22 (mean 21, se 1); without it 5, 7 (mean 6, se 1); RAPL 6, 6: a gain of 15
+    value, error = equal_frames.carried_bar([20.0, 22.0], [5.0, 7.0], [6.0, 6.0])
+    assert value == pytest.approx(100.0) and error == pytest.approx(100 * 2 ** 0.5 / 15)
+    assert all(math.isnan(v) for v in equal_frames.carried_bar([5.0], [4.0], [6.0]))  # no gain
+    assert all(math.isnan(v) for v in equal_frames.carried_bar([], [4.0], [6.0]))
+
+
 def _record(method, env_id, seed, score, variant=None):
     return RunRecord(key=f"{method}{env_id}{seed}{variant}", method=method, env_id=env_id,
                      seed=seed, variant=dict(variant or {}), role="main", steps=10,
@@ -233,6 +241,7 @@ def test_the_leave_one_out_table_by_hand(tmp_path):
                and "[" in ln]
     above_a2c, above_all = line.rstrip(" |").split(" | ")[-2:]
     assert above_a2c == "1.00 [1.00, 1.00]" and above_all.startswith("0.22 [")
+    assert (tmp_path / "equal_frames_leave_one_out.png").stat().st_size > 10_000
     # A diagnosis, not a candidate: the goal table does not list the leave-one-out arms.
     goal = [ln for ln in text.splitlines() if " of 3 | " in ln]
     assert goal and not [ln for ln in goal if "all but" in ln]

@@ -49,6 +49,7 @@ from routine_gym.experiments.writing import Writer, interval, num, pct, table
 
 FILE = "equal_frames"
 CURVES_FILE = "equal_frames_curves"
+LEAVE_ONE_OUT_FILE = "equal_frames_leave_one_out"
 #: Each mechanism's flags (the same on both scripts), in the report's order; `all` is every
 #: one of them at once.
 MECHANISMS: dict[str, tuple[tuple[str, object], ...]] = {
@@ -311,7 +312,8 @@ def _leave_one_out_lines(w: Writer, family: str, groups: dict[str, list[RunRecor
             "it the gain is gone; below 0: better without it; – where all are not above RAPL). "
             "These arms were added after the results of all four, as a diagnosis: the goal "
             "does not judge them, and one above all four here would need fresh seeds to be "
-            "called better.", "",
+            f"called better. Figure: `{LEAVE_ONE_OUT_FILE}.png` (what each mechanism "
+            "carries, per game).", "",
             *table(("arm", "game", "runs", "score", f"vs {every}", f"vs {base}", "carried",
                     "steps per decision", "interrupted"), rows),
             *aggregate_lines(w, agg),
@@ -395,6 +397,64 @@ def _draw_relative(w: Writer, groups: dict[str, list[RunRecord]], games: list[st
     w.png(fig, FILE)
 
 
+def carried_bar(s_all: Sequence[float], s_without: Sequence[float], s_rapl: Sequence[float]
+                ) -> tuple[float, float]:
+    """A mechanism's bar, in %: 100 · `carried` of the means, and its error bar, the standard
+    error of S̄_all − S̄_without over the gain, 100 √(se_all² + se_without²)/(S̄_all − S̄_R)
+    (the gain's own noise left out). NaN and NaN without scores or without a gain.
+
+    Example:
+        >>> carried_bar([14.0, 16.0], [8.0, 10.0], [4.0, 6.0])  # (15 − 9)/(15 − 5), se 1 each
+        (60.0, 14.142135623730951)
+    """
+    if not len(s_all) or not len(s_without) or not len(s_rapl):
+        return math.nan, math.nan
+    mean_all, mean_rapl = float(np.mean(s_all)), float(np.mean(s_rapl))
+    share = carried(mean_all, float(np.mean(s_without)), mean_rapl)
+    if not math.isfinite(share):
+        return math.nan, math.nan
+    error = math.hypot(standard_error(s_all), standard_error(s_without)) / (mean_all - mean_rapl)
+    return 100 * share, 100 * error
+
+
+def _draw_leave_one_out(w: Writer, groups: dict[str, list[RunRecord]], games: list[str]
+                        ) -> None:
+    """The A2C family's leave-one-out arms per game: the share of all four's gain over RAPL
+    that each mechanism carries (`carried_bar`), one bar per mechanism; no figure without
+    those arms."""
+    base, rapl = FAMILIES["A2C"]
+    every = arm(rapl, ALL)
+    names = [a for a in leave_one_out_arms("A2C") if a in groups]
+    if not names or every not in groups or rapl not in groups:
+        return
+    fig = figure(10.0, 4.5)
+    ax = fig.subplots()
+    labels = game_labels(games)
+    width = 0.8 / len(MECHANISMS)
+    x = np.arange(len(games))
+    for i, mechanism in enumerate(MECHANISMS):
+        a = arm(rapl, without(mechanism))
+        if a not in groups:
+            continue
+        bars = [carried_bar(_scores(groups[every], g), _scores(groups[a], g),
+                            _scores(groups[rapl], g)) for g in games]
+        values, errors = np.array(bars, dtype=np.float64).T
+        drawn = np.isfinite(values)  # a game without its runs, or where all are not above RAPL
+        ax.bar((x + (i - (len(MECHANISMS) - 1) / 2) * width)[drawn], values[drawn], width,
+               yerr=errors[drawn], capsize=2, error_kw={"linewidth": 0.8},
+               color=PALETTE[(2 + i) % len(PALETTE)], label=mechanism)
+    ax.axhline(0.0, color="black", linewidth=0.8)
+    ax.axhline(100.0, color="grey", linewidth=0.8, linestyle="--")
+    ax.set_xticks(x, [labels[g] for g in games])
+    ax.set_ylabel("share of all four's gain it carries (%)")
+    ax.set_title(f"Leave one out: the share of {every}'s gain over {rapl} each mechanism "
+                 "carries\n(100 %: without it the gain is gone; 0 %: it adds nothing; ±1 s.e.)",
+                 fontsize=10)
+    ax.legend(fontsize=8, title="the mechanism left out", title_fontsize=8,
+              loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    w.png(fig, LEAVE_ONE_OUT_FILE)
+
+
 def _draw_curves(w: Writer, groups: dict[str, list[RunRecord]], games: list[str]) -> None:
     """The A2C family per game: mean training return over frames (top) and updates made
     against frames (bottom), one line per arm."""
@@ -438,6 +498,7 @@ def section(w: Writer, runs: list[RunRecord]) -> list[str]:
     games = sorted({r.env_id for rs in groups.values() for r in rs})
     _draw_relative(w, groups, games)
     _draw_curves(w, groups, games)
+    _draw_leave_one_out(w, groups, games)
     lines = [f"Figures: `{FILE}.png` (each arm over its baseline per game, ±1 s.e. of the "
              "difference) and "
              f"`{CURVES_FILE}.png` (the A2C family's training curves and update clocks). "
@@ -458,6 +519,7 @@ EXPERIMENT = Experiment(
     methods=(*arms("A2C"), *leave_one_out_arms("A2C"), *arms("PPO")),
     colours={a: PALETTE[i % len(PALETTE)] for family in FAMILIES
              for i, a in enumerate((*arms(family), *leave_one_out_arms(family)))},
-    extra_files=(CURVES_FILE, *(f"{FILE}_{family.lower()}{part}" for family in FAMILIES
+    extra_files=(CURVES_FILE, LEAVE_ONE_OUT_FILE,
+                 *(f"{FILE}_{family.lower()}{part}" for family in FAMILIES
                                 for part in ("", "_counters")),
                  *(f"{FILE}_{family.lower()}_leave_one_out" for family in LEAVE_ONE_OUT_FAMILIES)))
