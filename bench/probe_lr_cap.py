@@ -181,7 +181,6 @@ def main() -> None:
     args = parser.parse_args()
     if args.jobs < 1:
         fail(f"--jobs must be at least 1, not {args.jobs}")
-    children_die_with_me()
     runs = tune_runs(args.sweep)
     probes = probe_configs(runs)
     scores = run_probes(probes, args.out / "runs", args.jobs)
@@ -205,4 +204,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    children_die_with_me()
     main()
