@@ -242,9 +242,10 @@ def test_the_first_protocols_runs_keep_their_keys_and_demos():
                 "demo": f"@demos/first/{e.env_id.replace('/', '-')}.npz"}
 
 
-def test_a_fair_sweep_tunes_then_runs_the_diagnosis_and_reports_it(tmp_path):
+def test_a_fair_sweep_tunes_then_runs_the_diagnosis_and_equal_frames_and_reports_them(tmp_path):
     """As a user: the smoke-fair tune experiment, then its diagnosis (whose runs learn with
-    the choices), then the report."""
+    the choices), then equal-frames on one seed (both families' arms and the A2C family's
+    leave-one-out arms, reusing the runs the others finished), then the report."""
     out = tmp_path / "sweep"
     for name in ("tune", "diagnosis"):
         proc = user("routine-gym", "experiment", "run", name, "--budget", "smoke-fair",
@@ -265,6 +266,28 @@ def test_a_fair_sweep_tunes_then_runs_the_diagnosis_and_reports_it(tmp_path):
             assert "|anneal_lr|True|" in table or "|anneal_lr|False|" in table
             tuned += 1
     assert tuned == 2 * 7  # every main run of the 7 arms on 2 seeds learned as tuned
+    finished = {p.parent.name for p in (out / "runs").glob("*/result.json")}
+
+    proc = user("routine-gym", "experiment", "run", "equal-frames", "--budget", "smoke-fair",
+                "--out", out, "--jobs", "2", "--seeds", "1", cwd=tmp_path, timeout=600)
+    assert proc.returncode == 0, (proc.stdout[-2000:], proc.stderr[-2000:])
+    printed = proc.stdout + proc.stderr
+    # 4 tuned methods × 2 grid points, then 18 arms: 14 of both families, 4 leave one out;
+    # the runs the diagnosis made already (A2C's and RAPL-A2C's tune runs, their seed-1 runs,
+    # RAPL at A2C's updates, which is + equal updates) are not trained again
+    assert "runs 26/26 done, 0 running, 0 failed" in printed
+    keys = {r["key"] for r in json.loads((out / "equal-frames.json").read_text())["runs"]
+            if r["seed"] == 1}  # the manifest holds both seeds; the tune runs are labelled 1
+    assert len(keys) == 26 and len(keys & finished) == 7 and "7 finished before" in printed
+    configs = [json.loads((out / "runs" / k / "config.json").read_text()) for k in keys]
+    # the A2C family's arm without interruption: the other three mechanisms, no stop rule,
+    # and RAPL-A2C's tuned settings (derived from its tune runs)
+    (no_stop,) = [c for c in configs if c["script"] == "rapl_a2c"
+                  and c["flags"].get("intra-coef") == 1.0 and "interrupt" not in c["flags"]
+                  and c["flags"].get("rollout-unit") == "steps"
+                  and c["flags"].get("routine-logit") == "first-action"]
+    assert no_stop["flags"]["seed"] == 1 and no_stop["derived"][0][0] == "tuned"
+
     proc = user("routine-gym", "experiment", "report", out, cwd=tmp_path, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     report = (out / "report" / "report.md").read_text()
@@ -274,32 +297,11 @@ def test_a_fair_sweep_tunes_then_runs_the_diagnosis_and_reports_it(tmp_path):
     assert "over 100 episodes" in report  # the fair budgets' random references
     assert "## Demos" in report and "`demos/MinAtar-Breakout-v1.npz` | current |" in report
     rows = (out / "report" / "tune.csv").read_text().splitlines()
-    assert len(rows) == 1 + 3 * 2  # A2C, RAPL-A2C, MacroAction × 2 grid points
-
-
-def test_equal_frames_as_a_user_runs_every_arm_and_reports_the_leave_one_out(tmp_path):
-    """As a user: the smoke-fair equal-frames experiment on one seed (its tuning, then every
-    arm of both families and the A2C family's leave-one-out arms), then the report."""
-    out = tmp_path / "sweep"
-    proc = user("routine-gym", "experiment", "run", "equal-frames", "--budget", "smoke-fair",
-                "--out", out, "--jobs", "2", "--seeds", "1", cwd=tmp_path, timeout=600)
-    assert proc.returncode == 0, (proc.stdout[-2000:], proc.stderr[-2000:])
-    printed = proc.stdout + proc.stderr
-    # 4 tuned methods × 2 grid points, then 18 arms: 14 of both families, 4 leave one out
-    assert "runs 26/26 done, 0 running, 0 failed" in printed
-    configs = [json.loads(c.read_text()) for c in (out / "runs").glob("*/config.json")]
-    # the A2C family's arm without interruption: the other three mechanisms, no stop rule,
-    # and RAPL-A2C's tuned settings (derived from its tune runs)
-    (no_stop,) = [c for c in configs if c["script"] == "rapl_a2c"
-                  and c["flags"].get("intra-coef") == 1.0 and "interrupt" not in c["flags"]
-                  and c["flags"].get("rollout-unit") == "steps"
-                  and c["flags"].get("routine-logit") == "first-action"]
-    assert no_stop["flags"]["seed"] == 1 and no_stop["derived"][0][0] == "tuned"
-    proc = user("routine-gym", "experiment", "report", out, cwd=tmp_path, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    report = (out / "report" / "report.md").read_text()
+    # the tune experiment's own: A2C, RAPL-A2C, MacroAction × 2 grid points (the PPO family's
+    # tune runs, equal-frames' at this budget, are in its manifest, not tune's)
+    assert len(rows) == 1 + 3 * 2
     assert "#### Leave one out: which mechanisms carry RAPL-A2C + all" in report
     assert "| RAPL-A2C + all but interruption | Breakout | 1 |" in report
-    for name in ("equal_frames.png", "equal_frames_curves.png",
+    for name in ("equal_frames.png", "equal_frames_curves.png", "equal_frames_leave_one_out.png",
                  "equal_frames_a2c_leave_one_out.csv", "equal_frames_ppo_counters.csv"):
         assert (out / "report" / name).stat().st_size > 0, name
