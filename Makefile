@@ -29,7 +29,7 @@ $(STAMP): pyproject.toml setup.py $(wildcard routine_gym/_native/*.cpp routine_g
 	touch $(STAMP)
 
 test: $(STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadfile --durations=25 --doctest-modules routine_gym tests
+	$(PY) -m pytest -q -n 2 --durations=25 --doctest-modules routine_gym tests
 
 # The Python twins are the product too: the tests of every script's smoke run, the wrapper,
 # mining and MinAtar again with every compiled core turned off (docs/native.md), as .ci/run's
