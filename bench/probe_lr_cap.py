@@ -3,15 +3,17 @@
     python bench/probe_lr_cap.py bench/results/experiments/fair --out /tmp/lr-cap --jobs 2 \\
         --report bench/results/lr_cap_probe.md
 
-The fair protocol's grid (`specs.TUNE_GRIDS`) is each family's default learning rate, half and
-twice it, annealed and constant; at `fair` the top (twice the default) was chosen in 27 of 30
-method-game cells. If a higher rate were better still, the tuned baselines would sit below
-their best, and the comparison with RAPL would rest on a cap that may favour either arm. This
-probe trains each method of `METHODS` once more per tune run at the top constant point, with
-the learning rate doubled again (4× the default) and every other flag of that tune run (its
+The fair protocol's grid (`specs.TUNE_GRIDS`) is each family's default learning rate times a
+few factors, annealed and constant. If a rate above its top were better, the tuned methods
+would sit below their best, and the comparison with RAPL would rest on a cap that may favour
+either arm. This probe trains each method of `METHODS` once more per tune run at the top
+constant point, with the learning rate doubled again and every other flag of that tune run (its
 tuning seed, budget, demo, evaluation), and tabulates, per method and game, the mean final
 score over the tuning seeds of every constant point of the grid and of the probe's point:
-where the probe's is the highest, the grid capped that method there.
+where the probe's is the highest, the grid capped that method there. The top is the highest
+constant rate among the sweep's finished tune runs: with the grid's first form (½, 1, 2 times
+the default; its top chosen in 27 of 30 cells at `fair`) the probe ran at 4 times
+(`bench/results/lr_cap_probe.md`), which then joined the grid; run again, it checks 8 times.
 
 Runs go into `OUT/runs/KEY-x2/` (KEY the tune run's key), each as a sweep runs it
 (`backends.execute_run`: its log, checkpoints, `result.json`); run it again to resume (finished
@@ -44,10 +46,13 @@ def fail(message: str) -> None:
 
 
 def read_json(path: Path) -> dict:
+    """The JSON object in `path`; a one-line error naming the file if it is not one."""
+    from routine_gym.experiments import UsageError, read_json_object
+
     try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        fail(f"cannot read {path}: {exc}")
+        return read_json_object(path)
+    except UsageError as exc:
+        fail(str(exc))
         raise  # unreachable: fail exits
 
 

@@ -72,7 +72,11 @@ def test_the_probe_doubles_the_top_constant_rate_and_says_where_it_beats_the_gri
 
 def test_bad_input_is_refused_in_one_line(tmp_path):
     sweep = make_sweep(tmp_path)
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "tune.json").write_text("{\"runs\": [")
     for words, message in [
+        ((broken, "--out", tmp_path / "o"), f"{broken / 'tune.json'}: not valid JSON"),
         ((tmp_path, "--out", tmp_path / "o"), f"{tmp_path} has no tune.json"),
         ((sweep, "--out", tmp_path / "o", "--jobs", "0"), "--jobs must be at least 1, not 0"),
     ]:

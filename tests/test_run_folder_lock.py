@@ -42,6 +42,8 @@ def test_a_second_process_on_a_training_run_is_refused_naming_the_first(name, tm
         assert checkpoints, first.stderr.read() if first.poll() is not None else "no checkpoint"
         run = checkpoints[0].parent
         assert json.loads((run / LOCK_FILE).read_text())["pid"] == first.pid
+        # Paused, it holds its lock but leaves the CPU to the processes the test starts.
+        first.send_signal(signal.SIGSTOP)
         for target in (run, run / "checkpoint.pt"):  # a folder or its checkpoint: one run
             start = time.monotonic()
             second = subprocess.run(
@@ -50,7 +52,7 @@ def test_a_second_process_on_a_training_run_is_refused_naming_the_first(name, tm
             assert_one_line_error(second, f"{run.name} is in use by another run (pid "
                                   f"{first.pid} on ", "wait for it to end, or stop it")
             assert time.monotonic() - start < 60  # at once, not after training
-        assert first.poll() is None  # the first one trains on
+        assert first.poll() is None  # the first one is still there (paused), its lock held
     finally:
         first.send_signal(signal.SIGKILL)
         first.wait(timeout=60)

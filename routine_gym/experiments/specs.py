@@ -269,14 +269,19 @@ BUDGETS: dict[str, Budget] = {
 }
 
 #: The tuning grid of each method family (`--learning-rate`, `--anneal-lr`), the scripts'
-#: default first (a tie keeps it): the default learning rate, half and twice it, each
-#: annealed to 0 and constant. Why these: the schedule is what the first protocol's results
-#: turned on (A2C at 10^6 on Asterix: 3.2 annealed, 10.1 constant), and a factor of 2 either
-#: side brackets each default (A2C's RMSprop 7e-4, as in CleanRL and SB3; PPO's Adam 5e-4 of
-#: gymnax-blines' MinAtar configs) at the cost of six runs a tuning seed.
+#: default first (a tie keeps it): the default learning rate, half, twice and four times it,
+#: each annealed to 0 and constant. Why these: the schedule is what the first protocol's
+#: results turned on (A2C at 10^6 on Asterix: 3.2 annealed, 10.1 constant); factors of 2
+#: bracket each default (A2C's RMSprop 7e-4, as in CleanRL and SB3; PPO's Adam 5e-4 of
+#: gymnax-blines' MinAtar configs). Four times: the grid's first form stopped at twice, and
+#: at `fair` that top was chosen in 27 of 30 method-game cells; `bench/probe_lr_cap.py` then
+#: found four times better still in several cells (`bench/results/lr_cap_probe.md`), so the
+#: grid grew by one factor for every method alike (two runs more a tuning seed, eight in all).
+#: The probe, run again, checks its new top.
+TUNE_FACTORS = (1.0, 0.5, 2.0, 4.0)
 TUNE_GRIDS: dict[str, tuple[tuple[tuple[str, Any], ...], ...]] = {
-    family: tuple((("learning-rate", lr), ("anneal-lr", anneal))
-                  for lr in (base, base / 2, base * 2) for anneal in (True, False))
+    family: tuple((("learning-rate", base * factor), ("anneal-lr", anneal))
+                  for factor in TUNE_FACTORS for anneal in (True, False))
     for family, base in (("a2c", 7e-4), ("ppo", 5e-4))}
 #: A grid point: its flags, `(flag, value)` pairs.
 Point = tuple[tuple[str, Any], ...]

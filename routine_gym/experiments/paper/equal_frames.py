@@ -302,14 +302,15 @@ def _leave_one_out_lines(w: Writer, family: str, groups: dict[str, list[RunRecor
                 agg.matrices[a], agg.matrices[other], reps=w.reps, seed=w.seed), percent=False)
                 if other in agg.matrices else "–")
         poi_rows.append((a, *cells))
-    left_out = ", ".join(m for m in MECHANISMS)
+    left_out = ", ".join(MECHANISMS)
     return [f"#### Leave one out: which mechanisms carry {every}",
             "",
             f"{rapl} with every mechanism but one ({left_out}), at {rapl}'s tuned settings, "
             "on the same seeds. Per game: mean ± standard error; Welch's t-test over seeds "
             f"against {every} and against {base}; the share of {every}'s gain over {rapl} "
-            "that the mechanism left out carries, (S_all − S_without)/(S_all − S_R) (1: without "
-            "it the gain is gone; below 0: better without it; – where all are not above RAPL). "
+            "that the mechanism left out carries, (S_all − S_without)/(S_all − S_R) (100 %: "
+            "without it the gain is gone; below 0 %: better without it; – where all are not "
+            "above RAPL). "
             "These arms were added after the results of all four, as a diagnosis: the goal "
             "does not judge them, and one above all four here would need fresh seeds to be "
             f"called better. Figure: `{LEAVE_ONE_OUT_FILE}.png` (what each mechanism "

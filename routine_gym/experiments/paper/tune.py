@@ -4,7 +4,7 @@ Not one of the paper's figures.
 At a budget with tuning seeds (`Budget.tune_seeds`: `fair`, `fair-long`) each tuned method
 (`specs.TUNED_METHODS`: A2C, RAPL-A2C, MacroAction, PPO, RAPL-PPO, MacroAction-PPO) trains on
 each game at every point of its family's grid (`specs.TUNE_GRIDS`: the default learning rate,
-half and twice it, each annealed and constant) on the tuning seeds, whose env seeds are
+half, twice and four times it, each annealed and constant) on the tuning seeds, whose env seeds are
 disjoint from the evaluation seeds', for the budget's own agent steps. The point with the
 highest mean final score over the tuning seeds is the method's setting on that game (a tie
 keeps the first in grid order, the default), and every run of the rl and diagnosis
@@ -120,7 +120,8 @@ def _draw(w: Writer, found: dict[tuple[str, str], dict]) -> None:
     labels = game_labels(games)
     fig = figure(max(8.0, 2.2 * len(games)), 2.6 * len(methods) + 0.8)
     axes = fig.subplots(len(methods), 1, squeeze=False)[:, 0]
-    colours = ("#1f77b4", "#aec7e8", "#ff7f0e", "#ffbb78", "#2ca02c", "#98df8a")
+    colours = ("#1f77b4", "#aec7e8", "#ff7f0e", "#ffbb78", "#2ca02c", "#98df8a", "#d62728",
+               "#ff9896")  # a pair (annealed, constant) per learning rate
     for ax, method in zip(axes, methods, strict=True):
         for gi, g in enumerate(games):
             c = found.get((method, g))
