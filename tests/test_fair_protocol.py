@@ -194,8 +194,9 @@ def test_the_fair_budget_tunes_every_method_on_its_own_seeds():
     lrs = {e.run.script: set() for e in tune}
     for e in tune:
         lrs[e.run.script].add((dict(e.run.flags)["learning-rate"], dict(e.run.flags)["anneal-lr"]))
-    assert lrs["rapl_a2c"] == {(lr, a) for lr in (7e-4, 3.5e-4, 1.4e-3, 2.8e-3) for a in (True, False)}
-    assert lrs["rapl_ppo"] == {(lr, a) for lr in (5e-4, 2.5e-4, 1e-3, 2e-3) for a in (True, False)}
+    both = (True, False)
+    assert lrs["rapl_a2c"] == {(lr, a) for lr in (7e-4, 3.5e-4, 1.4e-3, 2.8e-3) for a in both}
+    assert lrs["rapl_ppo"] == {(lr, a) for lr in (5e-4, 2.5e-4, 1e-3, 2e-3) for a in both}
     assert len(TUNE_GRIDS["a2c"]) == len(TUNE_GRIDS["ppo"]) == 8
     rl = [e for e in build("rl", "fair") if e.role == "main"]
     assert {e.method for e in rl} == {"A2C", "RAPL-A2C", "PPO", "RAPL-PPO", "MacroAction-PPO"}
