@@ -23,6 +23,7 @@ from routine_gym.experiments.paper.equal_frames import (
 )
 from routine_gym.experiments.registry import available, build
 from routine_gym.experiments.results import RunRecord
+from routine_gym.experiments.specs import BUDGETS
 from routine_gym.experiments.writing import Writer
 
 FREEWAY = "MinAtar/Freeway-v1"
@@ -33,12 +34,12 @@ def test_every_rapl_arm_is_rapl_as_published_plus_its_mechanism_alone():
                if e.role == "main" and e.seed == 1]
     by_arm = {equal_frames.label(_record(e.method, e.env_id, e.seed, 0.0, e.variant)): e
               for e in entries}
-    assert set(by_arm) == set(arms("A2C")) | set(arms("PPO")) | set(leave_one_out_arms("A2C"))
-    assert len(by_arm) == 2 * (2 + len(MECHANISMS) + 1) + len(MECHANISMS) == 18
-    assert not leave_one_out_arms("PPO")
+    assert set(by_arm) == (set(arms("A2C")) | set(arms("PPO")) | set(leave_one_out_arms("A2C"))
+                           | set(leave_one_out_arms("PPO")))
+    assert len(by_arm) == 2 * (2 + len(MECHANISMS) + 1 + len(MECHANISMS)) == 22
     for rapl in ("RAPL-A2C", "RAPL-PPO"):
         published = by_arm[rapl].run
-        left_out = [without(m) for m in MECHANISMS] if rapl == "RAPL-A2C" else []
+        left_out = [without(m) for m in MECHANISMS]
         for mechanism in (*MECHANISMS, ALL, *left_out):
             run = by_arm[f"{rapl} + {mechanism}"].run
             added = {k: v for k, v in run.flags if k not in dict(published.flags)}
@@ -53,11 +54,13 @@ def test_every_rapl_arm_is_rapl_as_published_plus_its_mechanism_alone():
 
 
 def test_five_seeds_per_arm_and_game_at_both_fair_budgets():
-    # fair (10^6) adds the A2C family's four leave-one-out arms; fair-long (10^7) has none
-    for budget, num_arms in (("fair", 18), ("fair-long", 14)):
+    # fair (10^6) adds both families' four leave-one-out arms; fair-long (10^7) has none; the
+    # tests' smoke-fair the A2C family's only
+    for budget, num_arms in (("fair", 22), ("fair-long", 14), ("smoke-fair", 18)):
         main = [e for e in build("equal-frames", budget) if e.role == "main"]
-        assert len(main) == num_arms * 5 * 5  # arms × games × seeds
-        assert {e.seed for e in main} == set(range(1, 6))
+        games, seeds = len(BUDGETS[budget].rl_games), BUDGETS[budget].seeds
+        assert len(main) == num_arms * games * seeds  # arms × games × seeds
+        assert {e.seed for e in main} == set(range(1, seeds + 1))
 
 
 def test_a_budget_without_tuning_has_no_equal_frames_runs():
@@ -213,23 +216,27 @@ def test_the_leave_one_out_table_by_hand(tmp_path):
     a gain of 15 over RAPL); all but equal updates 5, 6, 7 (mean 6: it carries all of it);
     all but interruption 19, 20, 21 (mean 20: it carries 1 of the 15)."""
     runs = []
-    for env_id in GAMES:
-        for seed, (a2c, rapl, every, no_updates, no_stop) in enumerate(
-                [(10, 4, 20, 5, 19), (12, 6, 21, 6, 20), (14, 8, 22, 7, 21)], start=1):
-            runs += [_record("A2C", env_id, seed, a2c), _record("RAPL-A2C", env_id, seed, rapl),
-                     _record("RAPL-A2C", env_id, seed, every, {"mechanism": ALL}),
-                     _record("RAPL-A2C", env_id, seed, no_updates,
-                             {"mechanism": without("equal updates")}),
-                     _record("RAPL-A2C", env_id, seed, no_stop,
-                             {"mechanism": without("interruption")})]
+    for base, rapl_name in (("A2C", "RAPL-A2C"), ("PPO", "RAPL-PPO")):  # the same numbers
+        for env_id in GAMES:
+            for seed, (a2c, rapl, every, no_updates, no_stop) in enumerate(
+                    [(10, 4, 20, 5, 19), (12, 6, 21, 6, 20), (14, 8, 22, 7, 21)], start=1):
+                runs += [_record(base, env_id, seed, a2c),
+                         _record(rapl_name, env_id, seed, rapl),
+                         _record(rapl_name, env_id, seed, every, {"mechanism": ALL}),
+                         _record(rapl_name, env_id, seed, no_updates,
+                                 {"mechanism": without("equal updates")}),
+                         _record(rapl_name, env_id, seed, no_stop,
+                                 {"mechanism": without("interruption")})]
     w = Writer(tmp_path, references={}, reps=200, seed=0)
     text = "\n".join(equal_frames.section(w, runs))
-    rows = {(r[1], r[2]): r for r in csv.reader(
-        (tmp_path / "equal_frames_a2c_leave_one_out.csv").read_text().splitlines()[1:])}
-    assert len(rows) == 2 * 3  # two arms with runs, three games
-    no_stop = rows["RAPL-A2C + all but interruption", "MinAtar/Freeway-v1"]
-    assert float(no_stop[4]) == 20.0 and float(no_stop[6]) == pytest.approx(1 / 15)
-    assert float(rows["RAPL-A2C + all but equal updates", "MinAtar/Seaquest-v1"][6]) == 1.0
+    for family, rapl_name in (("a2c", "RAPL-A2C"), ("ppo", "RAPL-PPO")):
+        rows = {(r[1], r[2]): r for r in csv.reader(
+            (tmp_path / f"equal_frames_{family}_leave_one_out.csv").read_text().splitlines()[1:])}
+        assert len(rows) == 2 * 3  # two arms with runs, three games
+        no_stop = rows[f"{rapl_name} + all but interruption", "MinAtar/Freeway-v1"]
+        assert float(no_stop[4]) == 20.0 and float(no_stop[6]) == pytest.approx(1 / 15)
+        assert float(rows[f"{rapl_name} + all but equal updates", "MinAtar/Seaquest-v1"][6]) == 1.0
+    assert "#### Leave one out: which mechanisms carry RAPL-PPO + all" in text
     # Welch against all four, by hand: Δ = 6 − 21 = −15, se = √(1/3 + 1/3), t = −18.4, ν = 4.
     assert "| RAPL-A2C + all but equal updates | Freeway | 3 | 6.00 ± 0.58 | worse (Δ -15.00" \
         in text

@@ -171,9 +171,9 @@ class Budget:
     #: How many points of each family's grid (`TUNE_GRIDS`, from the first) it tunes over:
     #: all but in the tests' budget.
     tune_points: int | None = None
-    #: equal-frames adds the A2C family's leave-one-out arms (all mechanisms but one), a
-    #: diagnosis of which mechanisms carry the combination (issue 49).
-    leave_one_out: bool = False
+    #: The families (`"A2C"`, `"PPO"`) whose leave-one-out arms (all mechanisms but one)
+    #: equal-frames adds: a diagnosis of which mechanisms carry the combination (issue 49).
+    leave_one_out: tuple[str, ...] = ()
 
     def checkpoint_every(self, steps: int) -> int:
         """The `--checkpoint-every` of a run of `steps`: a `checkpoints`-th of it (at least 1).
@@ -241,7 +241,7 @@ BUDGETS: dict[str, Budget] = {
         gail_steps=512, bc_steps=50, expert_steps=1_000, shipped_expert_steps=5_000,
         eval_episodes=1, scalability_k=(1, 3), scalability_lengths=(2, 4), demo_episodes=1,
         num_envs=4, experiments=("tune", "rl", "diagnosis", "equal-frames"), reference_episodes=100,
-        seed_stride=1000, tune_seeds=(101,), tune_points=2, leave_one_out=True),
+        seed_stride=1000, tune_seeds=(101,), tune_points=2, leave_one_out=("A2C",)),
     # The fair protocol (issue 47): the current demos (10M-step experts), every method's
     # learning rate and schedule tuned on seeds of its own (the tune experiment), 5 seeds whose
     # env seeds do not overlap, references from 100 random episodes.
@@ -254,7 +254,7 @@ BUDGETS: dict[str, Budget] = {
         bc_steps=10_000, expert_steps=10_000_000, shipped_expert_steps=10_000_000,
         eval_episodes=30, scalability_k=(1, 3, 6), scalability_lengths=(2, 5), rl_ppo=True,
         experiments=("tune", "rl", "diagnosis", "equal-frames"), reference_episodes=100,
-        seed_stride=1000, tune_seeds=(101, 102), leave_one_out=True),
+        seed_stride=1000, tune_seeds=(101, 102), leave_one_out=("A2C", "PPO")),
     "fair-long": Budget(
         name="fair-long",
         description="the fair protocol at the paper's 10^7 agent steps: MinAtar's five games, "

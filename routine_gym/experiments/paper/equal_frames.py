@@ -10,8 +10,8 @@ tuning (the fair protocol: its demos, seeds and tuned learning rates):
   started at its first primitive's;
 - RAPL with all of them at once (`all`, declared before any run: not picked from the results,
   which would favour it);
-- on budgets with `leave_one_out` (the fair ones at 10^6), the A2C family's RAPL with all but
-  one mechanism (`all but interruption`, ...): which mechanisms carry the combination. Added
+- on budgets with `leave_one_out` (at `fair`, 10^6: both families), RAPL with all but one
+  mechanism (`all but interruption`, ...): which mechanisms carry the combination. Added
   after all four's results, so a diagnosis, not a candidate: the goal does not judge them.
 
 Every RAPL arm learns with RAPL's tuned settings (its method's grid point of the tune
@@ -59,9 +59,10 @@ MECHANISMS: dict[str, tuple[tuple[str, object], ...]] = {
     "first-action logit": (("routine-logit", "first-action"),),
 }
 ALL = "all"
-#: The families with leave-one-out arms: the A2C family, whose all four are level with A2C
-#: (the PPO family's are below PPO on two games).
-LEAVE_ONE_OUT_FAMILIES = ("A2C",)
+#: The families that may have leave-one-out arms (a budget's `leave_one_out` names those it
+#: runs): the A2C family's first, whose all four are level with A2C; the PPO family's, whose
+#: all four are below PPO on two games (which mechanism does it?), from the wider grid on.
+LEAVE_ONE_OUT_FAMILIES = ("A2C", "PPO")
 #: (baseline, RAPL as published) of each family.
 FAMILIES = {"A2C": ("A2C", "RAPL-A2C"), "PPO": ("PPO", "RAPL-PPO")}
 #: The goal of issue 49: at or above the baseline on this many games, P(X > baseline) at least
@@ -131,11 +132,12 @@ def add_runs(b: Builder) -> None:
                 flags = mechanism_flags(mechanism)
                 b.a2c("RAPL-A2C", env_id, seed, {"mechanism": mechanism}, extra=flags)
                 b.ppo("RAPL-PPO", env_id, seed, {"mechanism": mechanism}, extra=flags)
-            if b.budget.leave_one_out:  # the A2C family's only (LEAVE_ONE_OUT_FAMILIES)
+            for family in b.budget.leave_one_out:
+                add = b.a2c if family == "A2C" else b.ppo
                 for left_out in MECHANISMS:
                     name = without(left_out)
-                    b.a2c("RAPL-A2C", env_id, seed, {"mechanism": name},
-                          extra=mechanism_flags(name))
+                    add(FAMILIES[family][1], env_id, seed, {"mechanism": name},
+                        extra=mechanism_flags(name))
 
 
 def label(run: RunRecord) -> str | None:
@@ -420,39 +422,42 @@ def carried_bar(s_all: Sequence[float], s_without: Sequence[float], s_rapl: Sequ
 
 def _draw_leave_one_out(w: Writer, groups: dict[str, list[RunRecord]], games: list[str]
                         ) -> None:
-    """The A2C family's leave-one-out arms per game: the share of all four's gain over RAPL
-    that each mechanism carries (`carried_bar`), one bar per mechanism; no figure without
-    those arms."""
-    base, rapl = FAMILIES["A2C"]
-    every = arm(rapl, ALL)
-    names = [a for a in leave_one_out_arms("A2C") if a in groups]
-    if not names or every not in groups or rapl not in groups:
+    """Per family with leave-one-out arms, a panel: per game, the share of all four's gain
+    over RAPL that each mechanism carries (`carried_bar`), one bar per mechanism; no figure
+    without those arms."""
+    families = [f for f in LEAVE_ONE_OUT_FAMILIES
+                if any(a in groups for a in leave_one_out_arms(f))
+                and arm(FAMILIES[f][1], ALL) in groups and FAMILIES[f][1] in groups]
+    if not families:
         return
-    fig = figure(10.0, 4.5)
-    ax = fig.subplots()
+    fig = figure(10.0, 4.0 * len(families) + 0.5)
+    axes = fig.subplots(len(families), 1, squeeze=False)[:, 0]
     labels = game_labels(games)
     width = 0.8 / len(MECHANISMS)
     x = np.arange(len(games))
-    for i, mechanism in enumerate(MECHANISMS):
-        a = arm(rapl, without(mechanism))
-        if a not in groups:
-            continue
-        bars = [carried_bar(_scores(groups[every], g), _scores(groups[a], g),
-                            _scores(groups[rapl], g)) for g in games]
-        values, errors = np.array(bars, dtype=np.float64).T
-        drawn = np.isfinite(values)  # a game without its runs, or where all are not above RAPL
-        ax.bar((x + (i - (len(MECHANISMS) - 1) / 2) * width)[drawn], values[drawn], width,
-               yerr=errors[drawn], capsize=2, error_kw={"linewidth": 0.8},
-               color=PALETTE[(2 + i) % len(PALETTE)], label=mechanism)
-    ax.axhline(0.0, color="black", linewidth=0.8)
-    ax.axhline(100.0, color="grey", linewidth=0.8, linestyle="--")
-    ax.set_xticks(x, [labels[g] for g in games])
-    ax.set_ylabel("share of all four's gain it carries (%)")
-    ax.set_title(f"Leave one out: the share of {every}'s gain over {rapl} each mechanism "
-                 "carries\n(100 %: without it the gain is gone; 0 %: it adds nothing; ±1 s.e.)",
-                 fontsize=10)
-    ax.legend(fontsize=8, title="the mechanism left out", title_fontsize=8,
-              loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    for ax, family in zip(axes, families, strict=True):
+        rapl = FAMILIES[family][1]
+        every = arm(rapl, ALL)
+        for i, mechanism in enumerate(MECHANISMS):
+            a = arm(rapl, without(mechanism))
+            if a not in groups:
+                continue
+            bars = [carried_bar(_scores(groups[every], g), _scores(groups[a], g),
+                                _scores(groups[rapl], g)) for g in games]
+            values, errors = np.array(bars, dtype=np.float64).T
+            drawn = np.isfinite(values)  # a game without runs, or all not above RAPL
+            ax.bar((x + (i - (len(MECHANISMS) - 1) / 2) * width)[drawn], values[drawn], width,
+                   yerr=errors[drawn], capsize=2, error_kw={"linewidth": 0.8},
+                   color=PALETTE[(2 + i) % len(PALETTE)], label=mechanism)
+        ax.axhline(0.0, color="black", linewidth=0.8)
+        ax.axhline(100.0, color="grey", linewidth=0.8, linestyle="--")
+        ax.set_xticks(x, [labels[g] for g in games])
+        ax.set_ylabel("share of all four's gain it carries (%)", fontsize=8)
+        ax.set_title(f"Leave one out: the share of {every}'s gain over {rapl} each mechanism "
+                     "carries\n(100 %: without it the gain is gone; 0 %: it adds nothing; "
+                     "±1 s.e.; no bar where all four are not above RAPL)", fontsize=10)
+        ax.legend(fontsize=8, title="the mechanism left out", title_fontsize=8,
+                  loc="upper left", bbox_to_anchor=(1.01, 1.0))
     w.png(fig, LEAVE_ONE_OUT_FILE)
 
 
@@ -517,7 +522,7 @@ EXPERIMENT = Experiment(
     name="equal-frames", version=1,
     title="Equal frames (beyond the paper): routine learners against A2C and PPO",
     figure="beyond the paper", file=FILE, add_runs=add_runs, section=section,
-    methods=(*arms("A2C"), *leave_one_out_arms("A2C"), *arms("PPO")),
+    methods=(*arms("A2C"), *leave_one_out_arms("A2C"), *arms("PPO"), *leave_one_out_arms("PPO")),
     colours={a: PALETTE[i % len(PALETTE)] for family in FAMILIES
              for i, a in enumerate((*arms(family), *leave_one_out_arms(family)))},
     extra_files=(CURVES_FILE, LEAVE_ONE_OUT_FILE,
