@@ -221,7 +221,8 @@ def _add_experiment(sub: argparse._SubParsersAction) -> dict[str, argparse.Argum
     q.add_argument("--backend", default="local", help="local (default) or ray")
     q.add_argument("--address", default=None,
                    help="HOST:PORT of a Ray cluster to join (default: start a local one)")
-    q.add_argument("--seeds", type=int, nargs="+", default=None, help="only these seeds")
+    q.add_argument("--seeds", type=int, nargs="+", default=None,
+                   help="only these seeds (and the runs of other seeds they need)")
     q.add_argument("--envs", nargs="+", default=None, help="only these games")
     q.add_argument("--cuda", action="store_true", help="runs use CUDA (Ray: one GPU per run)")
     q.add_argument("--cpus-per-run", type=int, default=1,

@@ -210,6 +210,16 @@ def test_the_fair_budget_tunes_every_method_on_its_own_seeds():
     assert BUDGETS["fair"].seeds >= 5 and BUDGETS["fair-long"].seeds >= 5
 
 
+def test_a_sweep_of_one_seed_trains_the_runs_of_other_seeds_it_needs():
+    every = {e.run.key: e for e in build("diagnosis", "smoke-fair")}
+    chosen = build("diagnosis", "smoke-fair", seeds=[1])
+    keys = {e.run.key for e in chosen}
+    assert {k for e in chosen for k in e.run.needs} <= keys
+    # beyond seed 1 and the tune runs: RAPL-A2C's seed-2 run alone (A2C at RAPL's updates)
+    others = [every[k] for k in keys if every[k].role == "main" and every[k].seed != 1]
+    assert [(e.method, e.seed, e.variant) for e in others] == [("RAPL-A2C", 2, {})]
+
+
 def test_the_fair_diagnosis_arms_each_change_one_thing():
     entries = [e for e in build("diagnosis", "fair", envs=["MinAtar/Freeway-v1"])
                if e.role == "main" and e.seed == 1]
@@ -266,7 +276,9 @@ def test_a_fair_sweep_tunes_then_runs_the_diagnosis_and_equal_frames_and_reports
             assert "|learning_rate|0.0007|" in table  # the smoke grid's learning rate
             assert "|anneal_lr|True|" in table or "|anneal_lr|False|" in table
             tuned += 1
-    assert tuned == 7  # every main run of the 7 arms on seed 1 learned as tuned
+    # every main run of the 7 arms on seed 1 learned as tuned, and RAPL-A2C's on seed 2: A2C
+    # at RAPL's updates is sized by RAPL-A2C's steps per decision over both seeds
+    assert tuned == 7 + 1
     finished = {p.parent.name for p in (out / "runs").glob("*/result.json")}
 
     proc = user("routine-gym", "experiment", "run", "equal-frames", "--budget", "smoke-fair",

@@ -126,8 +126,24 @@ def _build(name: str, budget: str, seeds: Sequence[int] | None,
         if bad:
             raise UsageError(f"--seeds {bad[0]} is outside the {budget} budget's seeds "
                              f"1..{sizes.seeds}")
-        entries = [e for e in entries if e.role != "main" or e.seed in set(seeds)]
+        entries = _with_needs(entries, [e for e in entries
+                                        if e.role != "main" or e.seed in set(seeds)])
     return entries, builder.left_out
+
+
+def _with_needs(every: list[Entry], chosen: list[Entry]) -> list[Entry]:
+    """`chosen` and every run of `every` they need, all the way down, in `every`'s order: a
+    seed's run may need other seeds' (a diagnosis arm sized by RAPL-A2C's steps per decision
+    over all seeds), and a sweep of one seed must train those too."""
+    by_key = {e.run.key: e for e in every}
+    wanted = {e.run.key for e in chosen}
+    todo = [k for e in chosen for k in e.run.needs]
+    while todo:
+        key = todo.pop()
+        if key in by_key and key not in wanted:
+            wanted.add(key)
+            todo.extend(by_key[key].run.needs)
+    return [e for e in every if e.run.key in wanted]
 
 
 @functools.cache
