@@ -113,6 +113,8 @@ def section(w: Writer, runs: list[RunRecord]) -> list[str]:
 def _draw(w: Writer, found: dict[tuple[str, str], dict]) -> None:
     """A panel per method: per game, each grid point's mean score over the tuning seeds (its
     seeds as dots), the chosen point outlined."""
+    from matplotlib.patches import Patch
+
     from routine_gym.experiments.drawing import figure, game_labels
 
     methods = [m for m in METHODS if any(k[0] == m for k in found)]
@@ -122,6 +124,7 @@ def _draw(w: Writer, found: dict[tuple[str, str], dict]) -> None:
     axes = fig.subplots(len(methods), 1, squeeze=False)[:, 0]
     colours = ("#1f77b4", "#aec7e8", "#ff7f0e", "#ffbb78", "#2ca02c", "#98df8a", "#d62728",
                "#ff9896")  # a pair (annealed, constant) per learning rate
+    legend: dict[str, Patch] = {}
     for ax, method in zip(axes, methods, strict=True):
         for gi, g in enumerate(games):
             c = found.get((method, g))
@@ -132,18 +135,17 @@ def _draw(w: Writer, found: dict[tuple[str, str], dict]) -> None:
                 x = gi - 0.4 + width * (i + 0.5)
                 if scores:
                     chosen = c["chosen"] == i
-                    ax.bar(x, np.mean(scores), width, color=colours[i % len(colours)],
+                    colour = colours[i % len(colours)]
+                    ax.bar(x, np.mean(scores), width, color=colour,
                            edgecolor="black" if chosen else "none",
-                           linewidth=1.5 if chosen else 0,
-                           label=f"lr {lr:g}, {'annealed' if anneal else 'constant'}")
+                           linewidth=1.5 if chosen else 0)
                     ax.scatter([x] * len(scores), scores, color="black", s=6, zorder=3)
+                    # every grid point once, without the outline a choice has in a panel
+                    legend.setdefault(f"lr {lr:g}, {'annealed' if anneal else 'constant'}",
+                                      Patch(facecolor=colour))
         ax.set_xticks(range(len(games)), [labels[g] for g in games])
         ax.set_xlim(-0.5, len(games) - 0.5)  # the same slots in every panel
         ax.set_ylabel(f"{method}\nfinal score")
-    legend = {}  # every grid point once, from whichever panel drew it
-    for ax in axes:
-        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
-            legend.setdefault(label, handle)
     if legend:
         fig.legend(list(legend.values()), list(legend), fontsize=8, ncols=3,
                    loc="outside lower center")
