@@ -18,17 +18,11 @@ from __future__ import annotations
 
 import argparse
 import filecmp
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-from common import base_machine_info, children_die_with_me, load_average
-
-
-def fail(message: str) -> None:
-    print(f"bench_report.py: error: {message}", file=sys.stderr)
-    raise SystemExit(2)
+from common import base_machine_info, children_die_with_me, fail, load_average
 
 
 def timed_report(sweep: Path, folder: Path, reps: int) -> float:

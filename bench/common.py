@@ -12,10 +12,18 @@ import platform
 import re
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+
+def fail(message: str) -> None:
+    """Stop the benchmark with one line on stderr, `NAME.py: error: MESSAGE`, and exit code 2
+    (as argparse's errors)."""
+    print(f"{Path(sys.argv[0]).name}: error: {message}", file=sys.stderr)
+    raise SystemExit(2)
 
 
 def load_average() -> str:

@@ -26,12 +26,11 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import sys
 import time
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
-from common import base_machine_info, children_die_with_me
+from common import base_machine_info, children_die_with_me, fail
 
 REPO = Path(__file__).resolve().parent.parent
 #: The methods probed: both families' baseline and RAPL as published.
@@ -39,10 +38,6 @@ METHODS = ("A2C", "RAPL-A2C", "PPO", "RAPL-PPO")
 #: How much the probe raises the grid's top learning rate.
 FACTOR = 2.0
 
-
-def fail(message: str) -> None:
-    print(f"probe_lr_cap.py: error: {message}", file=sys.stderr)
-    raise SystemExit(2)
 
 
 def read_json(path: Path) -> dict:

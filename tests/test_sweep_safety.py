@@ -89,14 +89,15 @@ def test_a_relative_out_trains_in_place_and_one_sweep_holds_the_folder_at_a_time
     out = tmp_path / "sweeps" / "smoke"
     lock = out / ".lock"
     first = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.DEVNULL,
-                             stderr=subprocess.DEVNULL, start_new_session=True)
+                             stderr=subprocess.DEVNULL)
     try:
         deadline = time.time() + 120
         while _lock_info(lock).get("pid") != first.pid and time.time() < deadline:
             assert first.poll() is None, "the first sweep ended before it held the folder"
             time.sleep(0.1)
-        # Paused with its runs, it holds the folder but leaves the CPU to the second.
-        os.killpg(first.pid, signal.SIGSTOP)
+        # Paused as soon as it holds the folder, it starts no run meanwhile (a run it started
+        # already trains on, in a process group of its own, and dies with it below).
+        first.send_signal(signal.SIGSTOP)
         info = _lock_info(lock)
         assert info["pid"] == first.pid and info["host"] == HOST
         assert "experiment run rl --budget smoke --out sweeps/smoke" in info["command"]
@@ -108,7 +109,7 @@ def test_a_relative_out_trains_in_place_and_one_sweep_holds_the_folder_at_a_time
                                 f"started {info['started']}")
         assert first.poll() is None
     finally:
-        os.killpg(first.pid, signal.SIGKILL)  # the sweep and any run it started
+        first.send_signal(signal.SIGKILL)
         first.wait(timeout=60)
     assert _lock_info(lock).get("pid") == first.pid  # the killed sweep's file is still there
 
