@@ -189,15 +189,17 @@ def test_derived_flags_read_the_finished_runs(tmp_path):
 
 def test_the_fair_budget_tunes_every_method_on_its_own_seeds():
     tune = build("tune", "fair")
-    assert len(tune) == 6 * 5 * 8 * 2  # methods × games × grid points × tuning seeds
+    assert len(tune) == 6 * 5 * 10 * 2  # methods × games × grid points × tuning seeds
     assert {dict(e.run.flags)["seed"] for e in tune} == {101, 102}
     lrs = {e.run.script: set() for e in tune}
     for e in tune:
         lrs[e.run.script].add((dict(e.run.flags)["learning-rate"], dict(e.run.flags)["anneal-lr"]))
     both = (True, False)
-    assert lrs["rapl_a2c"] == {(lr, a) for lr in (7e-4, 3.5e-4, 1.4e-3, 2.8e-3) for a in both}
-    assert lrs["rapl_ppo"] == {(lr, a) for lr in (5e-4, 2.5e-4, 1e-3, 2e-3) for a in both}
-    assert len(TUNE_GRIDS["a2c"]) == len(TUNE_GRIDS["ppo"]) == 8
+    assert lrs["rapl_a2c"] == {(lr, a) for lr in (7e-4, 3.5e-4, 1.4e-3, 2.8e-3, 5.6e-3)
+                                 for a in both}
+    assert lrs["rapl_ppo"] == {(lr, a) for lr in (5e-4, 2.5e-4, 1e-3, 2e-3, 4e-3)
+                                 for a in both}
+    assert len(TUNE_GRIDS["a2c"]) == len(TUNE_GRIDS["ppo"]) == 10
     rl = [e for e in build("rl", "fair") if e.role == "main"]
     assert {e.method for e in rl} == {"A2C", "RAPL-A2C", "PPO", "RAPL-PPO", "MacroAction-PPO"}
     for e in rl:
@@ -205,7 +207,7 @@ def test_the_fair_budget_tunes_every_method_on_its_own_seeds():
         assert flags["seed"] in range(1, 6) and flags["seed-stride"] == 1000
         assert "learning-rate" not in flags  # decided by the tune runs, which it needs
         (rule, params), = e.run.derived
-        assert rule == "tuned" and len(params) == 8
+        assert rule == "tuned" and len(params) == 10
         assert set(e.run.needs) >= {k for _, keys in params for k in keys}
     assert BUDGETS["fair"].seeds >= 5 and BUDGETS["fair-long"].seeds >= 5
 

@@ -269,16 +269,16 @@ BUDGETS: dict[str, Budget] = {
 }
 
 #: The tuning grid of each method family (`--learning-rate`, `--anneal-lr`), the scripts'
-#: default first (a tie keeps it): the default learning rate, half, twice and four times it,
-#: each annealed to 0 and constant. Why these: the schedule is what the first protocol's
-#: results turned on (A2C at 10^6 on Asterix: 3.2 annealed, 10.1 constant); factors of 2
-#: bracket each default (A2C's RMSprop 7e-4, as in CleanRL and SB3; PPO's Adam 5e-4 of
-#: gymnax-blines' MinAtar configs). Four times: the grid's first form stopped at twice, and
-#: at `fair` that top was chosen in 27 of 30 method-game cells; `bench/probe_lr_cap.py` then
-#: found four times better still in several cells (`bench/results/lr_cap_probe.md`), so the
-#: grid grew by one factor for every method alike (two runs more a tuning seed, eight in all).
-#: The probe, run again, checks its new top.
-TUNE_FACTORS = (1.0, 0.5, 2.0, 4.0)
+#: default first (a tie keeps it): the default learning rate, half, twice, four and eight
+#: times it, each annealed to 0 and constant. Why these: the schedule is what the first
+#: protocol's results turned on (A2C at 10^6 on Asterix: 3.2 annealed, 10.1 constant); factors
+#: of 2 bracket each default (A2C's RMSprop 7e-4, as in CleanRL and SB3; PPO's Adam 5e-4 of
+#: gymnax-blines' MinAtar configs). The top grew twice, for every method alike, by the rule of
+#: docs/fair-protocol.md: `bench/probe_lr_cap.py` runs twice the top, and where that beats the
+#: grid in more than 4 of 20 method-game cells, it joins the grid. The grid's first form stopped
+#: at twice (the probe at 4x won 14 of 20 cells, `bench/results/lr_cap_probe.md`), its second at
+#: four times (the probe at 8x won 9 of 20, `bench/results/lr_cap_probe_8x.md`); ten points.
+TUNE_FACTORS = (1.0, 0.5, 2.0, 4.0, 8.0)
 TUNE_GRIDS: dict[str, tuple[tuple[tuple[str, Any], ...], ...]] = {
     family: tuple((("learning-rate", base * factor), ("anneal-lr", anneal))
                   for factor in TUNE_FACTORS for anneal in (True, False))

@@ -4,7 +4,7 @@ Not one of the paper's figures.
 At a budget with tuning seeds (`Budget.tune_seeds`: `fair`, `fair-long`) each tuned method
 (`specs.TUNED_METHODS`: A2C, RAPL-A2C, MacroAction, PPO, RAPL-PPO, MacroAction-PPO) trains on
 each game at every point of its family's grid (`specs.TUNE_GRIDS`: the default learning rate,
-half, twice and four times it, each annealed and constant) on the tuning seeds, whose env seeds are
+half, two, four and eight times it, each annealed and constant) on the tuning seeds, whose env seeds are
 disjoint from the evaluation seeds', for the budget's own agent steps. The point with the
 highest mean final score over the tuning seeds is the method's setting on that game (a tie
 keeps the first in grid order, the default), and every run of the rl and diagnosis
