@@ -13,7 +13,9 @@ score over the tuning seeds of every constant point of the grid and of the probe
 where the probe's is the highest, the grid capped that method there. The top is the highest
 constant rate among the sweep's finished tune runs: with the grid's first form (½, 1, 2 times
 the default; its top chosen in 27 of 30 cells at `fair`) the probe ran at 4 times
-(`bench/results/lr_cap_probe.md`), which then joined the grid; run again, it checks 8 times.
+(`bench/results/lr_cap_probe.md`), which then joined the grid; run again, at 8 times
+(`bench/results/lr_cap_probe_8x.md`), which joined it too; next it checks 16 times. When the
+grid stops growing: docs/fair-protocol.md.
 
 Runs go into `OUT/runs/KEY-x2/` (KEY the tune run's key), each as a sweep runs it
 (`backends.execute_run`: its log, checkpoints, `result.json`); run it again to resume (finished
