@@ -6,16 +6,19 @@
 The fair protocol's grid (`specs.TUNE_GRIDS`) is each family's default learning rate times a
 few factors, annealed and constant. If a rate above its top were better, the tuned methods
 would sit below their best, and the comparison with RAPL would rest on a cap that may favour
-either arm. This probe trains each method of `METHODS` once more per tune run at the top
-constant point, with the learning rate doubled again and every other flag of that tune run (its
-tuning seed, budget, demo, evaluation), and tabulates, per method and game, the mean final
-score over the tuning seeds of every constant point of the grid and of the probe's point:
-where the probe's is the highest, the grid capped that method there. The top is the highest
-constant rate among the sweep's finished tune runs: with the grid's first form (½, 1, 2 times
-the default; its top chosen in 27 of 30 cells at `fair`) the probe ran at 4 times
+either arm. This probe trains each method of `METHODS` once more per tune run at the top point
+of its schedule (the highest constant rate, the highest annealed one), with the learning rate
+doubled again and every other flag of that tune run (its schedule, tuning seed, budget, demo,
+evaluation), and tabulates, per method and game, the mean final score over the tuning seeds of
+the grid's best point, its top points and the two probes: where a probe's is the highest, the
+grid capped that method there. Both schedules, because the methods differ in which they
+choose at the top (at `fair`, A2C mostly annealed, the RAPL arms constant): a probe of one
+schedule alone would find one side's cap and miss the other's. With the grid's first form (½,
+1, 2 times the default; its top chosen in 27 of 30 cells at `fair`) the probe ran at 4 times
 (`bench/results/lr_cap_probe.md`), which then joined the grid; run again, at 8 times
-(`bench/results/lr_cap_probe_8x.md`), which joined it too; next it checks 16 times. When the
-grid stops growing: docs/fair-protocol.md.
+(`bench/results/lr_cap_probe_8x.md`), which joined it too. Those two probes doubled the
+constant top only; next it checks 16 times, both schedules. When the grid stops growing:
+docs/fair-protocol.md.
 
 Runs go into `OUT/runs/KEY-x2/` (KEY the tune run's key), each as a sweep runs it
 (`backends.execute_run`: its log, checkpoints, `result.json`); run it again to resume (finished
@@ -71,32 +74,33 @@ def tune_runs(sweep: Path) -> list[dict]:
     return found
 
 
-def top_constant(runs: list[dict]) -> dict[str, float]:
-    """Each method's highest constant learning rate among its tune runs (the grid's top)."""
-    top: dict[str, float] = {}
+def top_points(runs: list[dict]) -> dict[tuple[str, bool], float]:
+    """Each method's highest learning rate among its tune runs of each schedule, keyed
+    `(method, anneal)`: the grid's top, constant and annealed."""
+    top: dict[tuple[str, bool], float] = {}
     for run in runs:
-        if run["variant"].get("anneal_lr") is False:
-            lr = float(run["variant"]["learning_rate"])
-            top[run["method"]] = max(top.get(run["method"], 0.0), lr)
+        cell = (run["method"], bool(run["variant"]["anneal_lr"]))
+        top[cell] = max(top.get(cell, 0.0), float(run["variant"]["learning_rate"]))
     return top
 
 
 def probe_configs(runs: list[dict]) -> list[dict]:
-    """A config per tune run at its method's top constant point: the same flags, the learning
-    rate times `FACTOR`, under the key `KEY-x2`."""
-    top = top_constant(runs)
+    """A config per tune run at its method's top point of its schedule: the same flags (the
+    schedule too), the learning rate times `FACTOR`, under the key `KEY-x2`."""
+    top = top_points(runs)
     configs = []
     for run in runs:
-        variant = run["variant"]
-        if variant.get("anneal_lr") is False and float(variant["learning_rate"]) == top.get(
-                run["method"]):
+        anneal = bool(run["variant"]["anneal_lr"])
+        lr = top[(run["method"], anneal)]
+        if float(run["variant"]["learning_rate"]) == lr:
             config = json.loads(json.dumps(run["config"]))
-            config["flags"]["learning-rate"] = FACTOR * top[run["method"]]
+            config["flags"]["learning-rate"] = FACTOR * lr
             config["key"] = f"{run['key']}-x{FACTOR:g}"
             config.pop("derived", None)
             configs.append({"config": config, "method": run["method"], "env_id": run["env_id"],
-                            "seed": run["config"]["flags"]["seed"]})
-    return sorted(configs, key=lambda c: METHODS.index(c["method"]))  # the A2C family first
+                            "seed": run["config"]["flags"]["seed"], "anneal": anneal})
+    # The A2C family first, each method's constant probes before its annealed ones.
+    return sorted(configs, key=lambda c: (METHODS.index(c["method"]), c["anneal"]))
 
 
 def run_probes(probes: list[dict], runs_dir: Path, jobs: int) -> dict[str, float]:
@@ -142,34 +146,37 @@ def point_name(lr: float, anneal: bool) -> str:
 
 def table(runs: list[dict], probes: list[dict], scores: dict[str, float]) -> tuple[list[str], int]:
     """The report's rows, per method and game: the grid's best point and its mean final score
-    over the tuning seeds, the top constant point's, the probe's, and whether the probe's is
-    the highest of all; and in how many cells it is."""
+    over the tuning seeds, the top point's of each schedule, the probe's of each (their rate
+    doubled), and whether a probe's is the highest of all; and in how many cells one is."""
     cells: dict[tuple[str, str], dict[str, list[float]]] = {}
     for run in runs:
         name = point_name(float(run["variant"]["learning_rate"]), run["variant"]["anneal_lr"])
         cells.setdefault((run["method"], run["env_id"]), {}).setdefault(name, []).append(
             run["score"])
-    probed: dict[tuple[str, str], list[float]] = {}
+    probed: dict[tuple[str, str, bool], list[float]] = {}
     for probe in probes:
-        probed.setdefault((probe["method"], probe["env_id"]), []).append(
+        probed.setdefault((probe["method"], probe["env_id"], probe["anneal"]), []).append(
             scores[probe["config"]["key"]])
-    top = top_constant(runs)
+    top = top_points(runs)
     rows, wins = [], 0
     for (method, env_id), cell in sorted(cells.items()):
         means = {name: statistics.fmean(v) for name, v in cell.items()}
         best = max(means, key=means.get)
-        top_name = point_name(top[method], False) if method in top else None
-        probe = probed.get((method, env_id))
-        won = probe is not None and statistics.fmean(probe) > means[best]
+        row = f"| {method} | {game(env_id)} | {means[best]:.2f} ({best}) |"
+        for anneal in (False, True):
+            name = point_name(top[(method, anneal)], anneal) if (method, anneal) in top else None
+            row += f" {means[name]:.2f} |" if name in means else " – |"
+        won = False
+        for anneal in (False, True):
+            probe = probed.get((method, env_id, anneal))
+            won |= probe is not None and statistics.fmean(probe) > means[best]
+            row += (f" {statistics.fmean(probe):.2f} ({point_name(FACTOR * top[(method, anneal)], anneal)}) |"
+                    if probe else " – |")
         wins += won
-        rows.append(
-            f"| {method} | {game(env_id)} | {means[best]:.2f} ({best}) | "
-            + (f"{means[top_name]:.2f}" if top_name in means else "–") + " | "
-            + (f"{statistics.fmean(probe):.2f} ({FACTOR * top[method]:g} constant)"
-               if probe else "–")
-            + f" | {'**yes**' if won else 'no'} |")
+        rows.append(row + f" {'**yes**' if won else 'no'} |")
     header = ["| method | game | the grid's best (its point) | the top constant point | "
-              "the probe | the probe beats the grid |", "|---|---|---:|---:|---:|---|"]
+              "the top annealed point | the probe, constant | the probe, annealed | "
+              "a probe beats the grid |", "|---|---|---:|---:|---:|---:|---:|---|"]
     return header + rows, wins
 
 
@@ -192,13 +199,14 @@ def main() -> None:
     text = "\n".join([
         "# Is the fair tuning grid's top learning rate a cap?", "",
         f"`python bench/probe_lr_cap.py {args.sweep} --out OUT --jobs {args.jobs}` "
-        f"({info['date']}, {info['cpu']}). Each method's tune runs at the grid's top constant "
-        f"point, run again with the learning rate times {FACTOR:g} and every other flag the "
-        f"same (tuning seeds {', '.join(map(str, seeds))}, the sweep's budget and demos). Mean "
-        "final score over the tuning seeds: the grid's best point (the tune experiment's "
-        "choice), its top constant point (the one the probe doubles) and the probe.", "",
+        f"({info['date']}, {info['cpu']}). Each method's tune runs at the grid's top point of "
+        f"each schedule (constant, annealed), run again with the learning rate times {FACTOR:g} "
+        f"and every other flag the same (tuning seeds {', '.join(map(str, seeds))}, the sweep's "
+        "budget and demos). Mean final score over the tuning seeds: the grid's best point (the "
+        "tune experiment's choice), its top points (the ones the probes double) and the "
+        "probes.", "",
         *rows, "",
-        f"The probe beats every grid point in {wins} of {len(rows) - 2} method-game cells.", ""])
+        f"A probe beats every grid point in {wins} of {len(rows) - 2} method-game cells.", ""])
     report = args.report or args.out / "lr_cap_probe.md"
     report.parent.mkdir(parents=True, exist_ok=True)
     report.write_text(text)

@@ -43,30 +43,36 @@ def make_sweep(root: Path) -> Path:
     return sweep
 
 
-def test_the_probe_doubles_the_top_constant_rate_and_says_where_it_beats_the_grid(tmp_path):
+def test_the_probe_doubles_the_top_rate_of_each_schedule_and_says_where_it_beats_the_grid(
+        tmp_path):
     sweep = make_sweep(tmp_path)
     out = tmp_path / "probe"
     done = run(sweep, "--out", out, "--jobs", "2", cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-2000:]
-    assert "2 runs, 0 finished before, 2 to run" in done.stdout
-    # Each probe is its game's top constant tune run (lr 1.4e-3) with the rate doubled.
-    for i in (1, 4):
+    assert "3 runs, 0 finished before, 3 to run" in done.stdout
+    # Each probe is a tune run at A2C's top rate of its schedule (1.4e-3, constant and
+    # annealed alike) with the rate doubled and its schedule kept: both games' constant runs
+    # and Breakout's annealed one (Asterix's annealed run is at 7e-4, below the top).
+    for i, anneal in ((1, False), (4, False), (2, True)):
         config = json.loads((out / "runs" / f"tune{i:08d}-x2" / "config.json").read_text())
         assert config["flags"]["learning-rate"] == 2.8e-3
-        assert config["flags"]["anneal-lr"] is False and config["flags"]["num-envs"] == 4
+        assert config["flags"]["anneal-lr"] is anneal and config["flags"]["num-envs"] == 4
         assert (out / "runs" / f"tune{i:08d}-x2" / "result.json").is_file()
+    assert not (out / "runs" / "tune00000003-x2").exists()
     report = (out / "lr_cap_probe.md").read_text()
     rows = {r.split(" | ")[1]: r for r in report.splitlines() if r.startswith("| A2C |")}
     # The grid's best by hand: Breakout −1.00 at 7e-4 constant; Asterix 1000.00 at 7e-4
-    # annealed; the top constant point's: −2.00 and 500.00.
-    assert rows["Breakout"].startswith("| A2C | Breakout | -1.00 (0.0007 constant) | -2.00 | ")
-    assert rows["Breakout"].endswith("(0.0028 constant) | **yes** |")
-    assert rows["Asterix"].startswith("| A2C | Asterix | 1000.00 (0.0007 annealed) | 500.00 | ")
-    assert rows["Asterix"].endswith(" | no |")
-    assert "The probe beats every grid point in 1 of 2 method-game cells." in report
+    # annealed; the top constant point's −2.00 and 500.00; the top annealed point's −1.50 on
+    # Breakout and none on Asterix.
+    assert rows["Breakout"].startswith("| A2C | Breakout | -1.00 (0.0007 constant) | -2.00 | -1.50 | ")
+    assert rows["Breakout"].endswith("(0.0028 annealed) | **yes** |")
+    assert "(0.0028 constant) |" in rows["Breakout"]
+    assert rows["Asterix"].startswith("| A2C | Asterix | 1000.00 (0.0007 annealed) | 500.00 | – | ")
+    assert rows["Asterix"].endswith("(0.0028 constant) | – | no |")
+    assert "A probe beats every grid point in 1 of 2 method-game cells." in report
     # Again: nothing trains, the same table.
     again = run(sweep, "--out", out, "--jobs", "2", cwd=tmp_path)
-    assert again.returncode == 0 and "2 finished before, 0 to run" in again.stdout
+    assert again.returncode == 0 and "3 finished before, 0 to run" in again.stdout
     assert (out / "lr_cap_probe.md").read_text().split("\n", 3)[3] == report.split("\n", 3)[3]
 
 
