@@ -170,8 +170,8 @@ def table(runs: list[dict], probes: list[dict], scores: dict[str, float]) -> tup
         for anneal in (False, True):
             probe = probed.get((method, env_id, anneal))
             won |= probe is not None and statistics.fmean(probe) > means[best]
-            row += (f" {statistics.fmean(probe):.2f} ({point_name(FACTOR * top[(method, anneal)], anneal)}) |"
-                    if probe else " – |")
+            doubled = point_name(FACTOR * top.get((method, anneal), 0.0), anneal)
+            row += f" {statistics.fmean(probe):.2f} ({doubled}) |" if probe else " – |"
         wins += won
         rows.append(row + f" {'**yes**' if won else 'no'} |")
     header = ["| method | game | the grid's best (its point) | the top constant point | "

@@ -64,7 +64,8 @@ def test_the_probe_doubles_the_top_rate_of_each_schedule_and_says_where_it_beats
     # The grid's best by hand: Breakout −1.00 at 7e-4 constant; Asterix 1000.00 at 7e-4
     # annealed; the top constant point's −2.00 and 500.00; the top annealed point's −1.50 on
     # Breakout and none on Asterix.
-    assert rows["Breakout"].startswith("| A2C | Breakout | -1.00 (0.0007 constant) | -2.00 | -1.50 | ")
+    assert rows["Breakout"].startswith(
+        "| A2C | Breakout | -1.00 (0.0007 constant) | -2.00 | -1.50 | ")
     assert rows["Breakout"].endswith("(0.0028 annealed) | **yes** |")
     assert "(0.0028 constant) |" in rows["Breakout"]
     assert rows["Asterix"].startswith("| A2C | Asterix | 1000.00 (0.0007 annealed) | 500.00 | – | ")

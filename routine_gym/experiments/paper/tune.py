@@ -4,8 +4,8 @@ Not one of the paper's figures.
 At a budget with tuning seeds (`Budget.tune_seeds`: `fair`, `fair-long`) each tuned method
 (`specs.TUNED_METHODS`: A2C, RAPL-A2C, MacroAction, PPO, RAPL-PPO, MacroAction-PPO) trains on
 each game at every point of its family's grid (`specs.TUNE_GRIDS`: the default learning rate,
-half, two, four and eight times it, each annealed and constant) on the tuning seeds, whose env seeds are
-disjoint from the evaluation seeds', for the budget's own agent steps. The point with the
+half, two, four and eight times it, each annealed and constant) on the tuning seeds, whose env
+seeds are disjoint from the evaluation seeds', for the budget's own agent steps. The point with the
 highest mean final score over the tuning seeds is the method's setting on that game (a tie
 keeps the first in grid order, the default), and every run of the rl and diagnosis
 experiments at that budget learns with it (`derived.py`'s `tuned` rule): no method gets a
