@@ -22,7 +22,9 @@ docs/fair-protocol.md.
 
 Runs go into `OUT/runs/KEY-x2/` (KEY the tune run's key), each as a sweep runs it
 (`backends.execute_run`: its log, checkpoints, `result.json`); run it again to resume (finished
-runs are read, killed ones resume from their checkpoints). The probe is not part of the
+runs are read, killed ones resume from their checkpoints). A run that diverges (its loss or
+weights stop being numbers, `routine_gym.plumbing.divergence`) is an answer here, not a fault:
+its probe point shows "diverged" and beats nothing. The probe is not part of the
 protocol: no sweep reads its runs.
 """
 
@@ -30,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import statistics
 import time
 from concurrent.futures import ThreadPoolExecutor, as_completed
@@ -103,8 +106,16 @@ def probe_configs(runs: list[dict]) -> list[dict]:
     return sorted(configs, key=lambda c: (METHODS.index(c["method"]), c["anneal"]))
 
 
+def diverged(error: str) -> bool:
+    """Whether a run's error is the report of `routine_gym.plumbing.divergence` (its loss,
+    gradient or weights stopped being numbers), which this probe expects at some rates."""
+    return "error: training stopped" in error and "a lower learning rate" in error
+
+
 def run_probes(probes: list[dict], runs_dir: Path, jobs: int) -> dict[str, float]:
-    """Run (or resume) every probe not finished; `{key: score}` of all of them."""
+    """Run (or resume) every probe not finished; `{key: score}` of all of them, NaN for a run
+    that diverged (noted in its folder's `diverged.txt`, so a second call does not train it
+    again). Any other failure stops the probe with a one-line error."""
     from routine_gym.experiments.backends import execute_run
 
     scores, todo = {}, []
@@ -115,6 +126,8 @@ def run_probes(probes: list[dict], runs_dir: Path, jobs: int) -> dict[str, float
         if (folder / "result.json").is_file():
             scores[probe["config"]["key"]] = float(
                 read_json(folder / "result.json")["eval"]["mean_return"])
+        elif (folder / "diverged.txt").is_file():
+            scores[probe["config"]["key"]] = math.nan
         else:
             todo.append(probe)
     print(f"[probe] {len(probes)} runs, {len(probes) - len(todo)} finished before, "
@@ -124,13 +137,19 @@ def run_probes(probes: list[dict], runs_dir: Path, jobs: int) -> dict[str, float
         futures = {pool.submit(execute_run, p["config"], str(runs_dir)): p for p in todo}
         for done, future in enumerate(as_completed(futures), start=1):
             probe, result = futures[future], future.result()
-            if "error" in result:
-                fail(f"run {probe['config']['key']} ({probe['method']} on {probe['env_id']}) "
+            key = probe["config"]["key"]
+            if "error" in result and diverged(result["error"]):
+                (runs_dir / key / "diverged.txt").write_text(result["error"] + "\n")
+                scores[key] = math.nan
+            elif "error" in result:
+                fail(f"run {key} ({probe['method']} on {probe['env_id']}) "
                      f"failed: {result['error']}")
-            scores[probe["config"]["key"]] = float(result["eval"]["mean_return"])
+            else:
+                scores[key] = float(result["eval"]["mean_return"])
             print(f"[probe] {done}/{len(todo)} {probe['method']} {probe['env_id']} seed "
-                  f"{probe['seed']}: {scores[probe['config']['key']]:.2f} "
-                  f"({(time.time() - start) / 60:.0f} min)", flush=True)
+                  f"{probe['seed']}: "
+                  + ("diverged" if math.isnan(scores[key]) else f"{scores[key]:.2f}")
+                  + f" ({(time.time() - start) / 60:.0f} min)", flush=True)
     return scores
 
 
@@ -169,9 +188,14 @@ def table(runs: list[dict], probes: list[dict], scores: dict[str, float]) -> tup
         won = False
         for anneal in (False, True):
             probe = probed.get((method, env_id, anneal))
-            won |= probe is not None and statistics.fmean(probe) > means[best]
             doubled = point_name(FACTOR * top.get((method, anneal), 0.0), anneal)
-            row += f" {statistics.fmean(probe):.2f} ({doubled}) |" if probe else " – |"
+            if not probe:
+                row += " – |"
+            elif any(math.isnan(score) for score in probe):  # a diverged run: no rival
+                row += f" diverged ({doubled}) |"
+            else:
+                won |= statistics.fmean(probe) > means[best]
+                row += f" {statistics.fmean(probe):.2f} ({doubled}) |"
         wins += won
         rows.append(row + f" {'**yes**' if won else 'no'} |")
     header = ["| method | game | the grid's best (its point) | the top constant point | "

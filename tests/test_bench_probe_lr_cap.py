@@ -1,7 +1,7 @@
 """`bench/probe_lr_cap.py` run as a user runs it, on a sweep folder made by hand: two games'
 tune runs of A2C (whose scores are set so the verdicts are known before the probe trains),
-each probed by one real run of 1,000 steps; a second call resumes instead of training again;
-bad input is refused with a one-line error."""
+each probed by one real run of 1,000 steps, and one of RAPL-A2C's whose probe diverges; a
+second call resumes instead of training again; bad input is refused with a one-line error."""
 
 from __future__ import annotations
 
@@ -20,23 +20,27 @@ run = partial(run_bench, "probe_lr_cap.py")  # the script as a user runs it
 TUNE = [("Breakout", 7e-4, False, -1.0), ("Breakout", 1.4e-3, False, -2.0),
         ("Breakout", 1.4e-3, True, -1.5),
         ("Asterix", 7e-4, True, 1000.0), ("Asterix", 1.4e-3, False, 500.0)]
+#: A tune run of RAPL-A2C's whose rate, doubled, drives the weights out of range within a
+#: rollout or two: its probe diverges, an answer the report shows, not a fault.
+DIVERGING = ("Breakout", 1e30, False, -1.0)
 
 
 def make_sweep(root: Path) -> Path:
     sweep = root / "sweep"
     runs = []
-    for i, (game, lr, anneal, score) in enumerate(TUNE):
+    for i, (game, lr, anneal, score) in enumerate(TUNE + [DIVERGING]):
+        method, mode = ("A2C", "a2c") if i < len(TUNE) else ("RAPL-A2C", "rapl")
         key = f"tune{i:08d}"
         env_id = f"MinAtar/{game}-v1"
         folder = sweep / "runs" / key
         folder.mkdir(parents=True)
         flags = {"env-id": env_id, "seed": 101, "total-timesteps": 1000, "eval-episodes": 1,
-                 "seed-stride": 1000, "mode": "a2c", "num-envs": 4, "learning-rate": lr,
+                 "seed-stride": 1000, "mode": mode, "num-envs": 4, "learning-rate": lr,
                  "anneal-lr": anneal}
         (folder / "config.json").write_text(json.dumps(
             {"key": key, "script": "rapl_a2c", "flags": flags, "needs": [], "steps": 1000}))
         (folder / "result.json").write_text(json.dumps({"eval": {"mean_return": score}}))
-        runs.append({"env_id": env_id, "key": key, "method": "A2C", "role": "main",
+        runs.append({"env_id": env_id, "key": key, "method": method, "role": "main",
                      "script": "rapl_a2c", "seed": 1, "steps": 1000,
                      "variant": {"learning_rate": lr, "anneal_lr": anneal}})
     (sweep / "tune.json").write_text(json.dumps({"experiment": "tune", "runs": runs}))
@@ -49,7 +53,8 @@ def test_the_probe_doubles_the_top_rate_of_each_schedule_and_says_where_it_beats
     out = tmp_path / "probe"
     done = run(sweep, "--out", out, "--jobs", "2", cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-2000:]
-    assert "3 runs, 0 finished before, 3 to run" in done.stdout
+    assert "4 runs, 0 finished before, 4 to run" in done.stdout
+    assert "RAPL-A2C MinAtar/Breakout-v1 seed 101: diverged" in done.stdout
     # Each probe is a tune run at A2C's top rate of its schedule (1.4e-3, constant and
     # annealed alike) with the rate doubled and its schedule kept: both games' constant runs
     # and Breakout's annealed one (Asterix's annealed run is at 7e-4, below the top).
@@ -70,10 +75,16 @@ def test_the_probe_doubles_the_top_rate_of_each_schedule_and_says_where_it_beats
     assert "(0.0028 constant) |" in rows["Breakout"]
     assert rows["Asterix"].startswith("| A2C | Asterix | 1000.00 (0.0007 annealed) | 500.00 | – | ")
     assert rows["Asterix"].endswith("(0.0028 constant) | – | no |")
-    assert "A probe beats every grid point in 1 of 2 method-game cells." in report
-    # Again: nothing trains, the same table.
+    # RAPL-A2C's probe diverged: shown so, and it beats nothing (its grid's best is −1).
+    (rapl,) = [r for r in report.splitlines() if r.startswith("| RAPL-A2C |")]
+    assert rapl == ("| RAPL-A2C | Breakout | -1.00 (1e+30 constant) | -1.00 | – | "
+                    "diverged (2e+30 constant) | – | no |")
+    assert (out / "runs" / "tune00000005-x2" / "diverged.txt").read_text().startswith(
+        "exit code 1: rapl_a2c.py: error: training stopped")
+    assert "A probe beats every grid point in 1 of 3 method-game cells." in report
+    # Again: nothing trains (the diverged run neither), the same table.
     again = run(sweep, "--out", out, "--jobs", "2", cwd=tmp_path)
-    assert again.returncode == 0 and "3 finished before, 0 to run" in again.stdout
+    assert again.returncode == 0 and "4 finished before, 0 to run" in again.stdout
     assert (out / "lr_cap_probe.md").read_text().split("\n", 3)[3] == report.split("\n", 3)[3]
 
 
