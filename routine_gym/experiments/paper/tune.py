@@ -116,41 +116,56 @@ def _draw(w: Writer, found: dict[tuple[str, str], dict]) -> None:
     from matplotlib.patches import Patch
 
     from routine_gym.experiments.drawing import figure, game_labels
+    from routine_gym.experiments.specs import TUNE_GRIDS
 
     methods = [m for m in METHODS if any(k[0] == m for k in found)]
     games = sorted({k[1] for k in found})
     labels = game_labels(games)
     fig = figure(max(8.0, 2.2 * len(games)), 2.6 * len(methods) + 0.8)
     axes = fig.subplots(len(methods), 1, squeeze=False)[:, 0]
-    colours = ("#1f77b4", "#aec7e8", "#ff7f0e", "#ffbb78", "#2ca02c", "#98df8a", "#d62728",
-               "#ff9896")  # a pair (annealed, constant) per learning rate
-    legend: dict[str, Patch] = {}
+    # A pair (annealed, constant) per factor of the family's default, the same in every figure:
+    # blue the default, orange half, green twice, red four, purple eight times it.
+    colours = {1.0: ("#1f77b4", "#aec7e8"), 0.5: ("#ff7f0e", "#ffbb78"),
+               2.0: ("#2ca02c", "#98df8a"), 4.0: ("#d62728", "#ff9896"),
+               8.0: ("#9467bd", "#c5b0d5")}
+    legend: dict[tuple[float, bool], tuple[str, Patch]] = {}
     for ax, method in zip(axes, methods, strict=True):
         for gi, g in enumerate(games):
             c = found.get((method, g))
             if c is None:
                 continue
             width = 0.8 / max(len(c["points"]), 1)
-            for i, ((lr, anneal), _, scores) in enumerate(c["points"]):
-                x = gi - 0.4 + width * (i + 0.5)
+            default = c["points"][0][0][0]  # the grids list the scripts' default first
+            # left to right by learning rate, annealed before constant
+            order = sorted(range(len(c["points"])),
+                           key=lambda i: (c["points"][i][0][0], not c["points"][i][0][1]))
+            for slot, i in enumerate(order):
+                (lr, anneal), _, scores = c["points"][i]
+                x = gi - 0.4 + width * (slot + 0.5)
                 if scores:
                     chosen = c["chosen"] == i
-                    colour = colours[i % len(colours)]
+                    factor = lr / default
+                    colour = colours.get(factor, ("#7f7f7f", "#c7c7c7"))[0 if anneal else 1]
                     ax.bar(x, np.mean(scores), width, color=colour,
                            edgecolor="black" if chosen else "none",
                            linewidth=1.5 if chosen else 0)
                     ax.scatter([x] * len(scores), scores, color="black", s=6, zorder=3)
                     # every grid point once, without the outline a choice has in a panel
-                    legend.setdefault(f"lr {lr:g}, {'annealed' if anneal else 'constant'}",
-                                      Patch(facecolor=colour))
+                    legend.setdefault(
+                        (factor, not anneal),
+                        (f"{factor:g}× default, {'annealed' if anneal else 'constant'}",
+                         Patch(facecolor=colour)))
         ax.set_xticks(range(len(games)), [labels[g] for g in games])
         ax.set_xlim(-0.5, len(games) - 0.5)  # the same slots in every panel
         ax.set_ylabel(f"{method}\nfinal score")
     if legend:
-        fig.legend(list(legend.values()), list(legend), fontsize=8, ncols=3,
-                   loc="outside lower center")
+        entries = [legend[k] for k in sorted(legend)]
+        fig.legend([e[1] for e in entries], [e[0] for e in entries], fontsize=8,
+                   ncols=min(len(entries), 5), loc="outside lower center")
     fig.suptitle("Tuning: each grid point's mean final score over the tuning seeds (dots: the "
-                 "seeds; outlined: the choice)", fontsize=10)
+                 "seeds; outlined: the choice)\nlearning rates as multiples of each family's "
+                 f"default (A2C's RMSprop {TUNE_GRIDS['a2c'][0][0][1]:g}, PPO's Adam "
+                 f"{TUNE_GRIDS['ppo'][0][0][1]:g})", fontsize=10)
     w.png(fig, FILE)
 
 
