@@ -47,7 +47,6 @@ METHODS = ("A2C", "RAPL-A2C", "PPO", "RAPL-PPO")
 FACTOR = 2.0
 
 
-
 def read_json(path: Path) -> dict:
     """The JSON object in `path`; a one-line error naming the file if it is not one."""
     from routine_gym.experiments import UsageError, read_json_object
