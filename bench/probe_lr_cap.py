@@ -105,16 +105,22 @@ def probe_configs(runs: list[dict]) -> list[dict]:
     return sorted(configs, key=lambda c: (METHODS.index(c["method"]), c["anneal"]))
 
 
-def diverged(error: str) -> bool:
-    """Whether a run's error is the report of `routine_gym.plumbing.divergence` (its loss,
-    gradient or weights stopped being numbers), which this probe expects at some rates."""
-    return "error: training stopped" in error and "a lower learning rate" in error
+def _diverged(folder: Path) -> bool:
+    """Whether the probe run in `folder` diverged before (its `diverged.json`)."""
+    from routine_gym.errors import UsageError
+    from routine_gym.experiments.results import divergence
+
+    try:
+        return divergence(folder) is not None
+    except UsageError as exc:  # a damaged record: one line, as for any bad file
+        fail(str(exc))
 
 
 def run_probes(probes: list[dict], runs_dir: Path, jobs: int) -> dict[str, float]:
     """Run (or resume) every probe not finished; `{key: score}` of all of them, NaN for a run
-    that diverged (noted in its folder's `diverged.txt`, so a second call does not train it
-    again). Any other failure stops the probe with a one-line error."""
+    that diverged (`execute_run` notes it in the run's `diverged.json`, so a second call does
+    not train it again; `diverged.txt` is an older probe's note). Any other failure stops the
+    probe with a one-line error."""
     from routine_gym.experiments.backends import execute_run
 
     scores, todo = {}, []
@@ -125,7 +131,7 @@ def run_probes(probes: list[dict], runs_dir: Path, jobs: int) -> dict[str, float
         if (folder / "result.json").is_file():
             scores[probe["config"]["key"]] = float(
                 read_json(folder / "result.json")["eval"]["mean_return"])
-        elif (folder / "diverged.txt").is_file():
+        elif (folder / "diverged.txt").is_file() or _diverged(folder):
             scores[probe["config"]["key"]] = math.nan
         else:
             todo.append(probe)
@@ -137,8 +143,7 @@ def run_probes(probes: list[dict], runs_dir: Path, jobs: int) -> dict[str, float
         for done, future in enumerate(as_completed(futures), start=1):
             probe, result = futures[future], future.result()
             key = probe["config"]["key"]
-            if "error" in result and diverged(result["error"]):
-                (runs_dir / key / "diverged.txt").write_text(result["error"] + "\n")
+            if result.get("diverged"):
                 scores[key] = math.nan
             elif "error" in result:
                 fail(f"run {key} ({probe['method']} on {probe['env_id']}) "

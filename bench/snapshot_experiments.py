@@ -9,7 +9,7 @@ copy it and run the same command with `--out` the copy to continue the sweep whe
         --command "bench/sweep_long.sh SWEEP 2" --beside bench/results/experiments/cpu
 
 Writes DEST/{experiment}.json, DEST/runs/KEY/{config,result}.json (and
-demo.npz), DEST/report/ (the figures, CSVs and report.md of `routine-gym experiment report
+diverged.json, demo.npz), DEST/report/ (the figures, CSVs and report.md of `routine-gym experiment report
 DEST [--beside OTHER]`, drawn from the copy, so the report names DEST and shows only what was
 committed) and DEST/provenance.json (machine, date, commit, command, the `--beside` folder,
 runs finished per experiment, and one line per snapshot so far: what ran when).
@@ -143,7 +143,8 @@ def snapshot() -> None:
         done = 0
         for key in keys:
             ok = finished(args.sweep, key)
-            for file in ("config.json", "result.json", "demo.npz"):
+            # diverged.json: a grid point that diverged, an answer the report shows
+            for file in ("config.json", "result.json", "diverged.json", "demo.npz"):
                 source = args.sweep / "runs" / key / file
                 if source.is_file() and (file != "result.json" or ok):
                     (dest / "runs" / key).mkdir(parents=True, exist_ok=True)

@@ -79,6 +79,9 @@ def cmd_experiment_run(args: argparse.Namespace) -> int:
                                      backend=args.backend, address=args.address,
                                      seeds=args.seeds, envs=envs, cuda=args.cuda,
                                      cpus_per_run=args.cpus_per_run, tracking=tracking)
+            for key, why in summary.diverged.items():
+                print(f"[{name}] run {key}, a grid point, diverged: its point loses the "
+                      f"choice ({why})")
             for key, why in summary.failed.items():
                 print(f"[{name}] run {key} failed: {why} (log: {args.out}/runs/{key}/log.txt)")
             failed += len(summary.failed)

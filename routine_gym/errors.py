@@ -7,9 +7,9 @@ command print it as one line on stderr, `SCRIPT: error: MESSAGE`, and exit with 
 traceback; so do Gymnasium's own errors (an unknown env id) and a missing file. `--debug` (or
 `ROUTINE_GYM_DEBUG=1` in the environment) shows the traceback instead. Anything else is a bug and
 keeps its traceback. A training run that diverges (`routine_gym.plumbing.divergence`) is one line
-too, with exit code 1: the command was valid, the run failed. So is a full disk (or quota)
-(`disk_full`), saying that nothing already written was lost (every file is written whole
-through `routine_gym.atomic`, so the last checkpoint is intact).
+too, with exit code 3: the command was valid, the run diverged. A full disk (or quota)
+(`disk_full`) is one line with exit code 1, saying that nothing already written was lost
+(every file is written whole through `routine_gym.atomic`, so the last checkpoint is intact).
 """
 
 from __future__ import annotations
@@ -22,6 +22,9 @@ __all__ = ["UsageError", "debug_requested", "disk_full", "expected_errors", "one
 
 #: The exit code of a run or command stopped by a full disk (2 is a user's mistake).
 DISK_FULL_EXIT = 1
+
+#: The exit code of a training run that diverged (`routine_gym.plumbing.divergence`).
+DIVERGED_EXIT = 3
 
 #: The environment variable that turns one-line errors back into tracebacks.
 DEBUG_VARIABLE = "ROUTINE_GYM_DEBUG"

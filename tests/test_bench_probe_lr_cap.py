@@ -79,8 +79,9 @@ def test_the_probe_doubles_the_top_rate_of_each_schedule_and_says_where_it_beats
     (rapl,) = [r for r in report.splitlines() if r.startswith("| RAPL-A2C |")]
     assert rapl == ("| RAPL-A2C | Breakout | -1.00 (1e+30 constant) | -1.00 | – | "
                     "diverged (2e+30 constant) | – | no |")
-    assert (out / "runs" / "tune00000005-x2" / "diverged.txt").read_text().startswith(
-        "exit code 1: rapl_a2c.py: error: training stopped")
+    record = json.loads((out / "runs" / "tune00000005-x2" / "diverged.json").read_text())
+    assert record["key"] == "tune00000005-x2"
+    assert record["error"].startswith("rapl_a2c.py: error: training stopped")
     assert "A probe beats every grid point in 1 of 3 method-game cells." in report
     # Again: nothing trains (the diverged run neither), the same table.
     again = run(sweep, "--out", out, "--jobs", "2", cwd=tmp_path)

@@ -1,5 +1,5 @@
 """A training run whose loss, gradient or parameters stop being numbers stops with one line
-(routine_gym/plumbing/divergence.py), in every script of `algos/`: exit code 1, no eval.json,
+(routine_gym/plumbing/divergence.py), in every script of `algos/`: exit code 3, no eval.json,
 the last checkpoint as it was (issue 46: `--reward-scale 1e30` trained on infinite losses and
 exited 0 with a normal-looking eval.json; `--learning-rate 1e30` died with a traceback)."""
 
@@ -107,7 +107,7 @@ def user(script: str, *words: str, cwd: Path) -> subprocess.CompletedProcess:
 
 def assert_stopped(proc: subprocess.CompletedProcess, script: str) -> str:
     lines = stderr_lines(proc.stderr)
-    assert proc.returncode == EXIT_CODE == 1, (proc.returncode, proc.stderr[-3000:])
+    assert proc.returncode == EXIT_CODE == 3, (proc.returncode, proc.stderr[-3000:])
     assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr[-3000:]
     assert lines[0].startswith(f"{script}.py: error: training stopped at "), lines[0]
     assert "the last checkpoint, if any, is intact" in lines[0]

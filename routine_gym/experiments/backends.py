@@ -33,10 +33,10 @@ from typing import Any
 import numpy as np
 
 from routine_gym.atomic import atomic_write_text
-from routine_gym.errors import UsageError, one_line
+from routine_gym.errors import DIVERGED_EXIT, UsageError, one_line
 from routine_gym.experiments import read_json_object, utc_now
 from routine_gym.experiments.provenance import NOTE_EVERY, Attempts
-from routine_gym.experiments.results import result_problem
+from routine_gym.experiments.results import DIVERGED_FILE, result_problem
 from routine_gym.experiments.run_counters import counter_record
 from routine_gym.experiments.training_curves import (
     CURVE_BINS,
@@ -173,8 +173,10 @@ def curve_and_counters(run_dir: Path, config: dict[str, Any]
 
 def execute_run(config: dict[str, Any], runs_dir: str, cuda: bool = False) -> dict[str, Any]:
     """Run (or resume) one run to the end and write its `result.json`; returns the result, or
-    `{"key", "error"}` with the last line of its log. Used by both backends (a Ray task runs it
-    on whichever node it lands)."""
+    `{"key", "error"}` with the last line of its log. A run whose script reports a divergence
+    (exit code `routine_gym.plumbing.divergence.EXIT_CODE`) gets a `diverged.json` beside it
+    (`results.divergence` reads it) and returns `{"key", "error", "diverged": True}`. Used by
+    both backends (a Ray task runs it on whichever node it lands)."""
     # Absolute: the run's process works in its own folder (a Ray task on whichever node).
     runs = Path(os.path.abspath(runs_dir))
     folder = runs / config["key"]
@@ -195,6 +197,11 @@ def execute_run(config: dict[str, Any], runs_dir: str, cuda: bool = False) -> di
         finally:
             with _CHILDREN_LOCK:
                 _CHILDREN.discard(proc)
+    if code == DIVERGED_EXIT:
+        record = {"key": config["key"], "error": _last_line(log), "finished": utc_now(),
+                  "provenance": attempts.record()}
+        atomic_write_text(folder / DIVERGED_FILE, json.dumps(record, indent=2) + "\n")
+        return {"key": config["key"], "error": f"diverged: {record['error']}", "diverged": True}
     evals = sorted(folder.glob("*/eval.json"), key=lambda p: p.stat().st_mtime)
     if code != 0 or not evals:
         why = f"exit code {code}" if code != 0 else "no eval.json"
@@ -216,6 +223,8 @@ def execute_run(config: dict[str, Any], runs_dir: str, cuda: bool = False) -> di
     if problem:  # never a result.json that the next sweep would call corrupt
         return {"key": config["key"], "error": f"its evaluation in {run_dir}: {problem}"}
     atomic_write_text(folder / "result.json", json.dumps(result, indent=2) + "\n")
+    with contextlib.suppress(FileNotFoundError):  # a divergence before, trained again since
+        (folder / DIVERGED_FILE).unlink()
     return result
 
 

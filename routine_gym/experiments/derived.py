@@ -10,7 +10,9 @@ are not: the key is fixed before any run has trained, as `@run:KEY/` paths are.
 Rules (each a pure function of the runs' results, tested with numbers by hand):
 
 - `tuned`: `(points, keys)`: the grid point whose runs have the highest mean final score
-  (`choose_point`); its flags.
+  (`choose_point`); its flags. A run that diverged (`results.divergence`) scores -inf: its
+  point loses, as a setting the method cannot learn with, and the choice is made among the
+  others (`grid_keys` are the runs whose divergence is such an answer, not a fault).
 - `updates-of`: `(num_steps, keys)`: `--num-steps` = round(num_steps × the runs' mean steps
   per decision): an A2C rollout of that many steps per env holds as many primitive steps as
   RAPL's rollout of `num_steps` decisions, so A2C makes RAPL's number of updates at its frames.
@@ -27,17 +29,22 @@ import numpy as np
 
 from routine_gym.errors import UsageError
 
-__all__ = ["RULES", "choose_point", "derived_flags", "grid_scores", "rollout_for_updates"]
+__all__ = ["RULES", "choose_point", "derived_flags", "grid_keys", "grid_scores",
+           "rollout_for_updates"]
 
 #: A grid point: its flags as `(flag, value)` pairs, in the order the grid lists them.
 Point = tuple[tuple[str, Any], ...]
 
 
 def _result(runs: Path, key: str) -> Mapping[str, Any]:
-    from routine_gym.experiments.results import load_result
+    from routine_gym.experiments.results import divergence, load_result
 
     path = runs / key / "result.json"
     if not path.exists():
+        diverged = divergence(runs / key)
+        if diverged is not None:
+            raise UsageError(f"run {key} diverged ({diverged}): the runs whose flags it "
+                             "decides cannot start")
         raise UsageError(f"run {key} has not finished ({path} is missing): the runs whose "
                          "flags it decides cannot start yet")
     return load_result(path, key)
@@ -55,19 +62,24 @@ def grid_scores(points: Sequence[tuple[Point, Sequence[float]]]) -> list[float]:
 
 def choose_point(points: Sequence[tuple[Point, Sequence[float]]]) -> int:
     """The index of the grid point with the highest mean score over its runs; on a tie the
-    first in grid order (the grids list the scripts' defaults first).
+    first in grid order (the grids list the scripts' defaults first). A run that diverged
+    scores -inf, so a point with one loses to every point whose runs all finished.
 
     Raises:
-        ValueError: no point has a score.
+        ValueError: no point has a score, or every point has a run that diverged.
 
     Example:
         >>> choose_point([((("lr", 1),), [2.0, 4.0]), ((("lr", 2),), [5.0, 1.0]),
         ...               ((("lr", 3),), [3.5, 2.5])])
         0
+        >>> choose_point([((("lr", 1),), [2.0, 4.0]), ((("lr", 2),), [9.0, -math.inf])])
+        0
     """
     means = grid_scores(points)
     if all(math.isnan(m) for m in means):
         raise ValueError("no grid point has a finished run")
+    if not any(math.isfinite(m) for m in means):
+        raise ValueError("every grid point has a run that diverged")
     return int(np.nanargmax(means))  # the first of equal maxima
 
 
@@ -101,10 +113,23 @@ def _steps_per_decision(result: Mapping[str, Any]) -> float:
     return float(steps) / float(decisions)
 
 
+def _tuned_score(runs: Path, key: str) -> float:
+    """A tune run's final score; -inf for one that diverged (its point loses)."""
+    from routine_gym.experiments.results import divergence
+
+    if not (runs / key / "result.json").exists() and divergence(runs / key) is not None:
+        return -math.inf
+    return _score(_result(runs, key))
+
+
 def _tuned(params: Any, runs: Path) -> dict[str, Any]:
-    points = [(tuple(map(tuple, point)), [_score(_result(runs, k)) for k in keys])
+    points = [(tuple(map(tuple, point)), [_tuned_score(runs, k) for k in keys])
               for point, keys in params]
-    return dict(points[choose_point(points)][0])
+    try:
+        return dict(points[choose_point(points)][0])
+    except ValueError as exc:
+        raise UsageError(f"cannot choose a tuned setting: {exc} (runs "
+                         f"{', '.join(k for _, keys in params for k in keys)})") from None
 
 
 def _updates_of(params: Any, runs: Path) -> dict[str, Any]:
@@ -114,6 +139,19 @@ def _updates_of(params: Any, runs: Path) -> dict[str, Any]:
 
 
 RULES = {"tuned": _tuned, "updates-of": _updates_of}
+
+
+def grid_keys(derived: Sequence[Sequence[Any]]) -> tuple[str, ...]:
+    """The runs a `tuned` rule of `derived` reads: grid points, whose divergence is an answer
+    (the point loses) rather than a fault.
+
+    Example:
+        >>> grid_keys([("tuned", [([["lr", 1]], ["a", "b"]), ([["lr", 2]], ["c"])]),
+        ...            ("updates-of", (5, ["d"]))])
+        ('a', 'b', 'c')
+    """
+    keys = [k for rule, params in derived if rule == "tuned" for _, ks in params for k in ks]
+    return tuple(dict.fromkeys(keys))
 
 
 def derived_keys(derived: Sequence[tuple[str, Any]]) -> tuple[str, ...]:

@@ -46,6 +46,9 @@ class Experiment:
     colours: Mapping[str, str] = field(default_factory=dict)
     #: Stems of further files its section writes (the curves' performance profiles).
     extra_files: tuple[str, ...] = ()
+    #: Whether its runs are points of a tuning grid: a run that diverges is its point's answer
+    #: (the point loses the choice), not a failure of the sweep.
+    grid: bool = False
 
     @property
     def files(self) -> tuple[str, ...]:

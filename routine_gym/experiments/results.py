@@ -17,8 +17,8 @@ from typing import Any, NamedTuple
 from routine_gym.errors import UsageError
 from routine_gym.experiments import json_kind, read_json_object
 
-__all__ = ["RESULT_HINT", "Manifest", "RunRecord", "is_number", "load_result", "load_runs",
-           "result_problem"]
+__all__ = ["DIVERGED_FILE", "RESULT_HINT", "Manifest", "RunRecord", "divergence", "is_number",
+           "load_result", "load_runs", "result_problem"]
 
 
 @dataclass(frozen=True)
@@ -34,6 +34,8 @@ class RunRecord:
     steps: int
     folder: Path
     result: Mapping[str, Any] | None = None
+    #: The one line of a run that diverged (its `diverged.json`) and has no result.
+    diverged: str | None = None
 
     @property
     def finished(self) -> bool:
@@ -55,6 +57,30 @@ _KEY = re.compile(r"[A-Za-z0-9_-]{1,64}")
 #: The hint of an error about a run's `result.json`.
 RESULT_HINT = ("run the sweep's `routine-gym experiment run` command again: it moves a corrupt "
                "result.json aside and reruns the run")
+
+
+#: A run's record that it diverged (`OUT/runs/KEY/diverged.json`, written by `execute_run` when
+#: its script exits with `routine_gym.plumbing.divergence.EXIT_CODE`): the key, the script's
+#: one-line report, when, and the provenance of its attempts.
+DIVERGED_FILE = "diverged.json"
+
+
+def divergence(folder: str | Path) -> str | None:
+    """The one-line report of a run that diverged (its folder's `diverged.json`) and has not
+    finished since (no `result.json`), or None.
+
+    Raises:
+        UsageError: the file is not a JSON object with a string `error`.
+    """
+    folder = Path(folder)
+    path = folder / DIVERGED_FILE
+    if (folder / "result.json").exists() or not path.exists():
+        return None
+    record = read_json_object(path, "delete it: the sweep then trains the run again")
+    if not isinstance(record.get("error"), str):
+        raise UsageError(f"{path}: `error` is {record.get('error')!r}, not the run's report; "
+                         "delete it: the sweep then trains the run again")
+    return record["error"]
 
 
 def is_number(value: Any) -> bool:
@@ -176,9 +202,11 @@ def _manifest_run(entry: Any, out: Path, results: dict[str, Mapping[str, Any] | 
     if key not in results:
         result_path = out / "runs" / key / "result.json"
         results[key] = load_result(result_path, key) if result_path.exists() else None
+    diverged = None if results[key] is not None else divergence(out / "runs" / key)
     return RunRecord(key=key, method=entry["method"], env_id=entry["env_id"], seed=entry["seed"],
                variant=dict(variant), role=entry.get("role", "main"),
-               steps=entry.get("steps", 0), folder=out / "runs" / key, result=results[key])
+               steps=entry.get("steps", 0), folder=out / "runs" / key, result=results[key],
+               diverged=diverged)
 
 
 def load_runs(out: str | Path, experiment: str,

@@ -22,7 +22,11 @@ aside to `result.json.corrupt-{time}`, with a note on the progress stream, and t
 again. A run with a `checkpoint.pt` resumes from it (`--resume`), so the same command continues
 a sweep after a crash, a kill or a lost session, losing at most one checkpoint interval per run.
 A run that fails is reported with the last line of its log and does not stop the others (the
-runs that need it are not started).
+runs that need it are not started). A run whose script reports a divergence (exit code 3,
+`routine_gym.plumbing.divergence`) gets `OUT/runs/{key}/diverged.json` (its one line, when, its
+provenance). A point of a tuning grid (a run of `tune`, or one a `tuned` rule reads) that
+diverged is an answer, not a failure: it is not trained again, its point loses the choice
+(`derived`) and the runs it decides start; any other divergence fails as any failure does.
 
 One sweep writes a folder at a time: it holds the folder's lock throughout (`folder_lock`).
 
@@ -58,9 +62,10 @@ from routine_gym.atomic import atomic_write_text
 from routine_gym.errors import UsageError, one_line
 from routine_gym.experiments import os_problem, read_json_object, utc_now
 from routine_gym.experiments.backends import LocalBackend, RayBackend, file_tail
+from routine_gym.experiments.derived import grid_keys
 from routine_gym.experiments.folder_lock import sweep_lock
 from routine_gym.experiments.registry import EXPERIMENTS, available, build, games, left_out
-from routine_gym.experiments.results import result_problem
+from routine_gym.experiments.results import divergence, result_problem
 from routine_gym.experiments.specs import BUDGETS, Entry, RunSpec
 from routine_gym.plumbing.arguments import MAX_TORCH_THREADS, usable_cpus
 
@@ -75,11 +80,13 @@ _STEP_LINE = re.compile(rb"(?:step|decision)\s+([\d,]+)/")
 
 @dataclass
 class SweepSummary:
-    """How a sweep went: keys done before it started, finished now, failed (with why)."""
+    """How a sweep went: keys done before it started, finished now, failed (with why), and the
+    grid points that diverged (with their one line; before or now), which are answers."""
 
     skipped: list[str] = field(default_factory=list)
     finished: list[str] = field(default_factory=list)
     failed: dict[str, str] = field(default_factory=dict)
+    diverged: dict[str, str] = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
@@ -181,7 +188,8 @@ class _Progress:
         return (sum(self.specs[k].steps for k in done)
                 + sum(min(_steps_done(self.runs, k), self.specs[k].steps) for k in running))
 
-    def show(self, done: set[str], running: set[str], failed: dict, force: bool = False) -> None:
+    def show(self, done: set[str], running: set[str], failed: dict, force: bool = False,
+             diverged: dict | None = None) -> None:
         now = time.time()
         if not force and now - self.last < (2.0 if self.tty else 30.0):
             return
@@ -195,7 +203,9 @@ class _Progress:
         else:
             eta = _duration((self.total - steps) / rate) if rate > 0 else "–"
         line = (f"[{self.name}] runs {len(done)}/{len(self.specs)} done, {len(running)} running, "
-                f"{len(failed)} failed · agent steps {steps:,}/{self.total:,} · "
+                f"{len(failed)} failed"
+                + (f", {len(diverged)} diverged (grid points)" if diverged else "")
+                + " · agent steps {steps:,}/{self.total:,} · "
                 f"{_duration(now - self.start)} elapsed · ETA {eta}")
         if self.tty:
             self.stream.write("\r\033[K" + line)
@@ -380,15 +390,23 @@ def _sweep(name: str, budget: str, out: Path, entries: list[Entry], *, jobs: int
 
     summary = SweepSummary()
     progress = _Progress(name, specs, runs, stream)
+    # Grid points: a divergence is their answer (the point loses), not a fault.
+    grid = set(specs) if EXPERIMENTS[name].grid else set()
+    for spec in specs.values():
+        grid.update(grid_keys(spec.derived))
     done = {k for k in specs if _finished(runs, k, progress, name)}
+    diverged = {k: why for k in specs if k in grid and k not in done
+                and (why := divergence(runs / k)) is not None}
     summary.skipped = sorted(done)
-    todo = [k for k in specs if k not in done]
+    summary.diverged = dict(diverged)
+    todo = [k for k in specs if k not in done and k not in diverged]
     where = (f"local, {jobs} at a time" if backend == "local" else
              f"Ray cluster at {address}" if address else f"local Ray instance of {jobs} CPUs")
-    progress.note(f"[{name}] budget {budget}: {len(specs)} runs, {len(done)} finished before, "
-                  f"{len(todo)} to run ({where}) into {out}")
+    before = f", {len(diverged)} grid point(s) diverged before" if diverged else ""
+    progress.note(f"[{name}] budget {budget}: {len(specs)} runs, {len(done)} finished before"
+                  f"{before}, {len(todo)} to run ({where}) into {out}")
     if not todo:
-        progress.show(done, set(), {}, force=True)
+        progress.show(done, set(), {}, force=True, diverged=diverged)
         return summary
 
     runner = (LocalBackend(jobs) if backend == "local"
@@ -399,41 +417,50 @@ def _sweep(name: str, budget: str, out: Path, entries: list[Entry], *, jobs: int
         while todo or handles:
             for key in list(todo):
                 spec = specs[key]
-                broken = [n for n in spec.needs if n in failed]
+                # a diverged need is an answer only to the `tuned` rule that reads it
+                answers = set(grid_keys(spec.derived))
+                broken = [n for n in spec.needs if n in failed
+                          or (n in diverged and n not in answers)]
                 if broken:
                     todo.remove(key)
-                    failed[key] = f"needs run {broken[0]}, which failed"
+                    failed[key] = (f"needs run {broken[0]}, which "
+                                   + ("failed" if broken[0] in failed else "diverged"))
                     progress.note(f"[{name}] failed {key} ({spec.script}): {failed[key]}")
                     continue
                 if backend == "local" and len(handles) >= jobs:
                     break
-                if all(n in done for n in spec.needs):
+                if all(n in done or n in diverged for n in spec.needs):
                     todo.remove(key)
                     # The tracking rides beside the run's flags: its key stays the same.
                     config = {**spec.config(), **({"tracking": tracking} if tracking else {})}
                     handles[runner.submit(config, runs, cuda)] = key
             if not handles:
                 for key in todo:  # nothing can start them: their needs are not in the sweep
-                    missing = next(n for n in specs[key].needs if n not in done)
+                    missing = next(n for n in specs[key].needs
+                                   if n not in done and n not in diverged)
                     failed[key] = f"needs run {missing}, which is not part of this sweep"
                 break
             for handle, outcome in runner.wait(list(handles), poll):
                 key = handles.pop(handle)
-                if "error" in outcome:
+                if outcome.get("diverged") and key in grid:
+                    diverged[key] = summary.diverged[key] = outcome["error"]
+                    progress.note(f"[{name}] diverged {key} ({specs[key].script}), a grid "
+                                  f"point: it loses the choice ({outcome['error']})")
+                elif "error" in outcome:
                     failed[key] = outcome["error"]
                     progress.note(f"[{name}] failed {key} ({specs[key].script}): "
                                   f"{outcome['error']}")
                 else:
                     done.add(key)
                     summary.finished.append(key)
-            progress.show(done, set(handles.values()), failed)
+            progress.show(done, set(handles.values()), failed, diverged=diverged)
     except KeyboardInterrupt:
         progress.note(f"[{name}] interrupted: the runs in flight keep their checkpoints; run "
                       "the same command to resume")
         raise
     finally:
         runner.close()
-    progress.show(done, set(), failed, force=True)
+    progress.show(done, set(), failed, force=True, diverged=diverged)
     if progress.tty:
         stream.write("\n")
     summary.failed = failed

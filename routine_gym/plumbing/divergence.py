@@ -16,9 +16,12 @@ rollout. Every script in `algos/` checks instead, at three places:
   sign of `--learning-rate 1e30`) becomes the same report (`as_divergence`).
 
 Each raises `TrainingDiverged`, which `run_script` prints as one line on stderr naming what went
-non-finite and the step, and the script exits with code 1 (`EXIT_CODE`): the command was
-valid, the run failed; 2 stays the code of a user's mistake. No `eval.json` is written; the
-run folder (its TensorBoard curves up to the failure) and its last checkpoint stay as they were.
+non-finite and the step, and the script exits with code 3 (`EXIT_CODE`): the command was
+valid, the run diverged. 2 stays the code of a user's mistake and 1 that of any other failure (a
+bug's traceback, a full disk), so a sweep can tell a divergence, an answer about the settings
+(a tuning grid's point that diverges loses, `routine_gym.experiments.derived`), from a fault.
+No `eval.json` is written; the run folder (its TensorBoard curves up to the failure) and its
+last checkpoint stay as they were.
 """
 
 from __future__ import annotations
@@ -29,10 +32,13 @@ from typing import Any
 
 import torch
 
+from routine_gym.errors import DIVERGED_EXIT
+
 __all__ = ["EXIT_CODE", "TrainingDiverged", "as_divergence", "check_parameters", "check_update"]
 
-#: The exit code of a run stopped by `TrainingDiverged`.
-EXIT_CODE = 1
+#: The exit code of a run stopped by `TrainingDiverged` (1: any other failure, 2: a user's
+#: mistake).
+EXIT_CODE = DIVERGED_EXIT
 
 #: What a run can do about it, said once in every report.
 _ADVICE = "the last checkpoint, if any, is intact; a lower learning rate or reward scale may help"

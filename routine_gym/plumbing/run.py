@@ -15,8 +15,8 @@ goes on numbering its films), and `run.finish(policy, ...)` saves the last check
 evaluates (`eval.json`, `--extra-evals`), records `--record-demo` and closes the writer; files
 go through the one atomic writer of `routine_gym.atomic`. A checkpoint is never
 written, nor the model evaluated, once a parameter or an optimizer state is not finite: the run
-stops with one line and exit code 1 (`routine_gym.plumbing.divergence`). With `--track` the writer's
-scalars also go to Weights & Biases (`routine_gym.plumbing.tracking`), and the W&B run id
+stops with one line and exit code 3 (`routine_gym.plumbing.divergence`). With `--track` the
+writer's scalars also go to Weights & Biases (`routine_gym.plumbing.tracking`), and the W&B run id
 travels in the checkpoints so that `--resume` continues the same W&B run.
 
 The argument check (`check_args`, `DOMAINS`) and the command line (`parse_args`) are in
@@ -105,7 +105,7 @@ def run_script(main: Callable[[Any], Any], args_type: type,
                 raise
             raise diverged from exc
     except TrainingDiverged as exc:
-        # One line and exit code 1 (the command was valid, the run failed); the run folder and
+        # One line and exit code 3 (the command was valid, the run diverged); the run folder and
         # its last checkpoint stay, with no eval.json (routine_gym.plumbing.divergence).
         _end_tracking(exit_code=EXIT_CODE)
         if debug:

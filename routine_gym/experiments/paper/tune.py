@@ -5,15 +5,16 @@ At a budget with tuning seeds (`Budget.tune_seeds`: `fair`, `fair-long`) each tu
 (`specs.TUNED_METHODS`: A2C, RAPL-A2C, MacroAction, PPO, RAPL-PPO, MacroAction-PPO) trains on
 each game at every point of its family's grid (`specs.TUNE_GRIDS`: the default learning rate,
 half, two, four and eight times it, each annealed and constant) on the tuning seeds, whose env
-seeds are disjoint from the evaluation seeds', for the budget's own agent steps. The point with the
-highest mean final score over the tuning seeds is the method's setting on that game (a tie
-keeps the first in grid order, the default), and every run of the rl and diagnosis
-experiments at that budget learns with it (`derived.py`'s `tuned` rule): no method gets a
-setting another was denied. A budget tunes the methods its experiments run (`methods_at`):
-at `fair-long`, A2C and RAPL-A2C.
+seeds are disjoint from the evaluation seeds', for the budget's own agent steps. The point
+with the highest mean final score over the tuning seeds is the method's setting on that game (a
+tie keeps the first in grid order, the default; a point with a run that diverged loses), and
+every run of the rl and diagnosis experiments at that budget learns with it (`derived.py`'s
+`tuned` rule): no method gets a setting another was denied. A budget tunes the methods its
+experiments run (`methods_at`): at `fair-long`, A2C and RAPL-A2C.
 
-The section: per method and game, each grid point's score on each tuning seed, their mean and
-the choice; `tune.csv` holds the same.
+The section: per method and game, each grid point's score on each tuning seed ("diverged" for
+a run that did), their mean and the choice; `tune.csv` holds the same (an empty mean where a
+run of the point diverged).
 """
 
 from __future__ import annotations
@@ -59,9 +60,9 @@ def _point(run: RunRecord) -> tuple[float, bool]:
 
 
 def choices(runs: Sequence[RunRecord]) -> dict[tuple[str, str], dict]:
-    """Per (method, game): each grid point's tuning-seed scores (`points`, grid order), the
-    chosen index (`chosen`; None until every point has a finished run) and whether every run
-    of the grid finished (`complete`)."""
+    """Per (method, game): each grid point's tuning-seed scores (`points`, grid order; -inf for
+    a run that diverged), the chosen index (`chosen`; None until every point has a finished
+    or diverged run) and whether every run of the grid ended (`complete`)."""
     from routine_gym.experiments.specs import TUNE_GRIDS
 
     out: dict[tuple[str, str], dict] = {}
@@ -75,14 +76,21 @@ def choices(runs: Sequence[RunRecord]) -> dict[tuple[str, str], dict]:
                 at = [r for r in mine if _point(r) == point]
                 if not at:  # a budget tuning fewer points (`Budget.tune_points`)
                     continue
-                points.append((point, at, [r.score for r in sorted(at, key=lambda r: r.seed)
-                                           if r.finished]))
+                points.append((point, at, [r.score if r.finished else -math.inf
+                                           for r in sorted(at, key=lambda r: r.seed)
+                                           if r.finished or r.diverged]))
             has_all = all(len(scores) > 0 for _, _, scores in points)
+            means = [np.mean(scores) for _, _, scores in points] if has_all else []
             chosen = (choose_point([((), scores) for _, _, scores in points])
-                      if has_all else None)
-            complete = all(r.finished for _, at, _ in points for r in at)
+                      if has_all and any(math.isfinite(m) for m in means) else None)
+            complete = all(r.finished or r.diverged for _, at, _ in points for r in at)
             out[(method, env_id)] = {"points": points, "chosen": chosen, "complete": complete}
     return out
+
+
+def _score_text(score: float, digits: int) -> str:
+    """A tune score as the table shows it: -inf (a run that diverged) as "diverged"."""
+    return "diverged" if score == -math.inf else num(score, digits)
 
 
 def section(w: Writer, runs: list[RunRecord]) -> list[str]:
@@ -96,7 +104,8 @@ def section(w: Writer, runs: list[RunRecord]) -> list[str]:
             if c["chosen"] == i and not c["complete"]:
                 mark = "leading (grid not finished)"
             rows.append((method, env_id, f"{lr:g}", "annealed" if anneal else "constant",
-                         ", ".join(num(s, 1) for s in scores) or "–", num(mean, 2), mark))
+                         ", ".join(_score_text(s, 1) for s in scores) or "–",
+                         _score_text(mean, 2), mark))
             csv_rows.append((method, env_id, lr, anneal, len(scores), mean,
                              c["chosen"] == i and c["complete"]))
     w.csv(FILE, ("method", "env_id", "learning_rate", "anneal_lr", "runs", "mean_score",
@@ -104,7 +113,8 @@ def section(w: Writer, runs: list[RunRecord]) -> list[str]:
     _draw(w, found)
     return ["Each method's learning rate and schedule on each game: the grid point with the "
             "highest mean final score over the tuning seeds (their env seeds are disjoint from "
-            "the evaluation seeds'), a tie keeping the script's default; every rl and "
+            "the evaluation seeds'), a tie keeping the script's default, a point with a run "
+            "that diverged losing; every rl and "
             "diagnosis run of this budget learns with it.", "",
             *table(("method", "game", "learning rate", "schedule", "tuning seeds' scores",
                     "mean", "choice"), rows), ""]
@@ -129,6 +139,7 @@ def _draw(w: Writer, found: dict[tuple[str, str], dict]) -> None:
                2.0: ("#2ca02c", "#98df8a"), 4.0: ("#d62728", "#ff9896"),
                8.0: ("#9467bd", "#c5b0d5")}
     legend: dict[tuple[float, bool], tuple[str, Patch]] = {}
+    diverged_seen = False
     for ax, method in zip(axes, methods, strict=True):
         for gi, g in enumerate(games):
             c = found.get((method, g))
@@ -146,10 +157,15 @@ def _draw(w: Writer, found: dict[tuple[str, str], dict]) -> None:
                     chosen = c["chosen"] == i
                     factor = lr / default
                     colour = colours.get(factor, ("#7f7f7f", "#c7c7c7"))[0 if anneal else 1]
-                    ax.bar(x, np.mean(scores), width, color=colour,
-                           edgecolor="black" if chosen else "none",
-                           linewidth=1.5 if chosen else 0)
-                    ax.scatter([x] * len(scores), scores, color="black", s=6, zorder=3)
+                    finite = [s for s in scores if math.isfinite(s)]
+                    if len(finite) < len(scores):  # a run diverged: an x at 0, no bar
+                        ax.scatter([x], [0.0], marker="x", color=colour, s=40, zorder=3)
+                        diverged_seen = True
+                    else:
+                        ax.bar(x, np.mean(scores), width, color=colour,
+                               edgecolor="black" if chosen else "none",
+                               linewidth=1.5 if chosen else 0)
+                    ax.scatter([x] * len(finite), finite, color="black", s=6, zorder=3)
                     # every grid point once, without the outline a choice has in a panel
                     legend.setdefault(
                         (factor, not anneal),
@@ -160,6 +176,11 @@ def _draw(w: Writer, found: dict[tuple[str, str], dict]) -> None:
         ax.set_ylabel(f"{method}\nfinal score")
     if legend:
         entries = [legend[k] for k in sorted(legend)]
+        if diverged_seen:
+            from matplotlib.lines import Line2D
+
+            entries.append(("a run diverged (no bar)", Line2D([], [], marker="x", color="black",
+                                                              linestyle="none")))
         fig.legend([e[1] for e in entries], [e[0] for e in entries], fontsize=8,
                    ncols=min(len(entries), 5), loc="outside lower center")
     fig.suptitle("Tuning: each grid point's mean final score over the tuning seeds (dots: the "
@@ -173,4 +194,4 @@ EXPERIMENT = Experiment(
     name="tune", version=1,
     title="The fair protocol's tuning: each method's learning rate and schedule on each game",
     figure="Tuning", file=FILE, add_runs=add_runs, section=section, normalised=False,
-    methods=METHODS)
+    methods=METHODS, grid=True)
