@@ -205,7 +205,7 @@ class _Progress:
         line = (f"[{self.name}] runs {len(done)}/{len(self.specs)} done, {len(running)} running, "
                 f"{len(failed)} failed"
                 + (f", {len(diverged)} diverged (grid points)" if diverged else "")
-                + " · agent steps {steps:,}/{self.total:,} · "
+                + f" · agent steps {steps:,}/{self.total:,} · "
                 f"{_duration(now - self.start)} elapsed · ETA {eta}")
         if self.tty:
             self.stream.write("\r\033[K" + line)
