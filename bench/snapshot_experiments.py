@@ -8,8 +8,8 @@ copy it and run the same command with `--out` the copy to continue the sweep whe
     .venv/bin/python bench/snapshot_experiments.py SWEEP bench/results/experiments/long \\
         --command "bench/sweep_long.sh SWEEP 2" --beside bench/results/experiments/cpu
 
-Writes DEST/{experiment}.json, DEST/runs/KEY/{config,result}.json (and
-diverged.json, demo.npz), DEST/report/ (the figures, CSVs and report.md of `routine-gym experiment report
+Writes DEST/{experiment}.json, DEST/runs/KEY/{config,result}.json (and diverged.json,
+demo.npz), DEST/report/ (the figures, CSVs and report.md of `routine-gym experiment report
 DEST [--beside OTHER]`, drawn from the copy, so the report names DEST and shows only what was
 committed) and DEST/provenance.json (machine, date, commit, command, the `--beside` folder,
 runs finished per experiment, and one line per snapshot so far: what ran when).
