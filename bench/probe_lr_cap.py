@@ -17,8 +17,8 @@ schedule alone would find one side's cap and miss the other's. With the grid's f
 1, 2 times the default; its top chosen in 27 of 30 cells at `fair`) the probe ran at 4 times
 (`bench/results/lr_cap_probe.md`), which then joined the grid; run again, at 8 times
 (`bench/results/lr_cap_probe_8x.md`), which joined it too. Those two probes doubled the
-constant top only; next it checks 16 times, both schedules. When the grid stops growing:
-docs/fair-protocol.md.
+constant top only; at 16 times, both schedules, it won 4 of 20 cells
+(`bench/results/lr_cap_probe_16x.md`), and the grid stopped growing (docs/fair-protocol.md).
 
 Runs go into `OUT/runs/KEY-x2/` (KEY the tune run's key), each as a sweep runs it
 (`backends.execute_run`: its log, checkpoints, `result.json`); run it again to resume (finished

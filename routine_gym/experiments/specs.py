@@ -277,7 +277,8 @@ BUDGETS: dict[str, Budget] = {
 #: docs/fair-protocol.md: `bench/probe_lr_cap.py` runs twice the top, and where that beats the
 #: grid in more than 4 of 20 method-game cells, it joins the grid. The grid's first form stopped
 #: at twice (the probe at 4x won 14 of 20 cells, `bench/results/lr_cap_probe.md`), its second at
-#: four times (the probe at 8x won 9 of 20, `bench/results/lr_cap_probe_8x.md`); ten points.
+#: four times (the probe at 8x won 9 of 20, `bench/results/lr_cap_probe_8x.md`); ten points. The
+#: probe at 16x won 4 of 20 (`bench/results/lr_cap_probe_16x.md`): the grid stops at 8x.
 TUNE_FACTORS = (1.0, 0.5, 2.0, 4.0, 8.0)
 TUNE_GRIDS: dict[str, tuple[tuple[tuple[str, Any], ...], ...]] = {
     family: tuple((("learning-rate", base * factor), ("anneal-lr", anneal))
