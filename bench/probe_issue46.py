@@ -3,7 +3,7 @@ run in a fresh process with a minimal environment (PATH with the venv's bin firs
 in a folder of its own, with tiny budgets, and each outcome classified:
 
     GOOD       exit code 0 with the expected output, or a one-line error (one non-empty line on
-               stderr, no traceback) with exit code 1 or 2
+               stderr, no traceback) with exit code 1, 2 or 3 (a run that diverged)
     TRACEBACK  a Python traceback on stderr
     WRONG      exit code 0 where it should fail, another exit code (a crash), an error that is
                not one line, a file written where it must not be (a file named `minari:X`, a run
@@ -514,7 +514,7 @@ def cases() -> list[Case]:
     # --- divergence (case 6) and bounds (case 5)
     for script in ("rapl_a2c", "rapl_ppo"):
         for flag in ("--reward-scale", "--learning-rate"):
-            add(f"case6/{script} {flag} 1e30", [script, *TINY, flag, "1e30"], rc=(1,),
+            add(f"case6/{script} {flag} 1e30", [script, *TINY, flag, "1e30"], rc=(3,),
                 check=absent("runs/*/eval.json"))
     add("case5/resume-checkpoint-with-1e7-envs", ["rapl_a2c", "--resume", "huge-envs.pt"],
         setup=copy("huge-envs.pt"), timeout=60)
@@ -732,8 +732,8 @@ def classify(case: Case, proc: subprocess.CompletedProcess | None, cwd: Path,
             return "WRONG", f"rc {proc.returncode} with {len(lines)} lines on stderr"
         after = _snapshot(cwd)
         new_runs = [p for p in after - before if p.startswith("runs/") and p.count("/") == 1]
-        # Refused (2): no run folder may be left. Failed (1, a run that diverged): its folder
-        # keeps the logs up to the step it stopped at, as docs/errors.md says.
+        # Refused (2): no run folder may be left. Diverged (3): its folder keeps the logs up to
+        # the step it stopped at, as docs/errors.md says.
         if new_runs and proc.returncode == 2:
             return "WRONG", f"refused but left {new_runs[0]}"
         if case.check and case.expect == "error":

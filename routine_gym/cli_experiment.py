@@ -80,8 +80,8 @@ def cmd_experiment_run(args: argparse.Namespace) -> int:
                                      seeds=args.seeds, envs=envs, cuda=args.cuda,
                                      cpus_per_run=args.cpus_per_run, tracking=tracking)
             for key, why in summary.diverged.items():
-                print(f"[{name}] run {key}, a grid point, diverged: its point loses the "
-                      f"choice ({why})")
+                print(f"[{name}] run {key}, a grid point, diverged ({why}): it is not trained "
+                      "again, and its point loses the choice")
             for key, why in summary.failed.items():
                 print(f"[{name}] run {key} failed: {why} (log: {args.out}/runs/{key}/log.txt)")
             failed += len(summary.failed)

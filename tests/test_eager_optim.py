@@ -14,8 +14,9 @@ from script_loader import ALGOS
 
 from routine_gym.plumbing.eager_optim import SWITCH
 
-#: Five seeded updates of each optimizer the scripts use, then a state_dict round trip; prints
-#: every parameter and whether torch._dynamo was imported.
+#: Five seeded updates of each optimizer the scripts use, a state_dict round trip into a new
+#: optimizer and three updates more; prints every parameter and whether torch._dynamo was
+#: imported.
 STEPS = """
 import json, sys, torch
 from routine_gym.plumbing.eager_optim import eager_optimizers
@@ -27,12 +28,15 @@ for name, make in (("rmsprop", lambda p: torch.optim.RMSprop(p, lr=7e-4, alpha=0
     torch.manual_seed(0)
     model = torch.nn.Sequential(torch.nn.Linear(4, 8), torch.nn.Tanh(), torch.nn.Linear(8, 3))
     opt = make(model.parameters())
-    for i in range(5):
+    for i in range(8):
+        if i == 5:  # as a resumed run: a new optimizer from the saved state
+            state = opt.state_dict()
+            opt = make(model.parameters())
+            opt.load_state_dict(state)
         loss = model(torch.randn(6, 4)).pow(2).mean()
         opt.zero_grad()
         loss.backward()
         opt.step()
-    opt.load_state_dict(opt.state_dict())
     out[name] = [p.detach().flatten().tolist() for p in model.parameters()]
 out["dynamo"] = "torch._dynamo" in sys.modules
 print(json.dumps(out))
@@ -49,7 +53,7 @@ def test_the_eager_step_is_torchs_update_without_the_dynamo_import(tmp_path):
     eager, torchs = (json.loads(_python(["-c", STEPS], s, tmp_path).stdout) for s in ("1", "0"))
     assert eager["changed"] == ["Optimizer.add_param_group", "Optimizer.zero_grad",
                                 "Optimizer.state_dict", "Optimizer.load_state_dict",
-                                "rmsprop", "adam", "RMSprop.step", "Adam.step"]
+                                "RMSprop.step", "Adam.step"]
     assert torchs["changed"] == []
     assert eager["dynamo"] is False and torchs["dynamo"] is True
     for name in ("rmsprop", "adam", "adam-fused"):
@@ -67,15 +71,24 @@ def _losses(run_dir: Path) -> dict[str, list[float]]:
             if tag.startswith("losses/")}
 
 
+#: Runs a script as `python SCRIPT ARGS` does, then says on stderr whether torch._dynamo was
+#: imported in its process.
+AS_SCRIPT = ("import runpy, sys\nscript = sys.argv[1]\nsys.argv = sys.argv[1:]\ntry:\n"
+             "    runpy.run_path(script, run_name='__main__')\nfinally:\n"
+             "    print('dynamo imported:', 'torch._dynamo' in sys.modules, file=sys.stderr)")
+
+
 def test_a_seeded_script_run_is_the_same_either_way(tmp_path):
     evals, losses = {}, {}
     for switch in ("1", "0"):
         run_dir = tmp_path / f"run{switch}"
-        proc = _python([str(ALGOS / "rapl_a2c.py"), "--mode", "rapl", "--env-id",
+        proc = _python(["-c", AS_SCRIPT, str(ALGOS / "rapl_a2c.py"), "--mode", "rapl", "--env-id",
                         "MinAtar/Breakout-v1", "--total-timesteps", "1500", "--num-envs", "4",
                         "--eval-episodes", "3", "--seed", "3", "--run-dir", str(run_dir),
                         "--torch-threads", "1", "--scalars-every", "1"], switch, tmp_path)
         assert proc.returncode == 0, proc.stderr[-2000:]
+        # the script's run_script turns it on; the switch turns it off
+        assert f"dynamo imported: {switch == '0'}" in proc.stderr
         (path,) = run_dir.glob("*/eval.json")
         evals[switch] = json.loads(path.read_text())
         losses[switch] = _losses(run_dir)

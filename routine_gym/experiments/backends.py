@@ -181,7 +181,10 @@ def execute_run(config: dict[str, Any], runs_dir: str, cuda: bool = False) -> di
     runs = Path(os.path.abspath(runs_dir))
     folder = runs / config["key"]
     log = folder / "log.txt"
-    words = command(config, runs, cuda=cuda)
+    try:
+        words = command(config, runs, cuda=cuda)
+    except UsageError as exc:  # flags a rule cannot decide (`derived`): one line, no process
+        return {"key": config["key"], "error": one_line(exc)}
     start = time.time()
     attempts = Attempts(folder, resumed="--resume" in words)
     with open(log, "ab") as out:
@@ -311,7 +314,7 @@ def _outcome(get: Callable[[], dict]) -> dict:
     try:
         return get()
     except Exception as err:  # noqa: BLE001 - a run's crash is reported, not raised
-        return {"error": f"{type(err).__name__}: {str(err).strip().splitlines()[-1:]}"}
+        return {"error": f"{type(err).__name__}: {one_line(err)}"}
 
 
 def _sigterm(*_: Any) -> None:

@@ -129,7 +129,9 @@ def _tuned(params: Any, runs: Path) -> dict[str, Any]:
         return dict(points[choose_point(points)][0])
     except ValueError as exc:
         raise UsageError(f"cannot choose a tuned setting: {exc} (runs "
-                         f"{', '.join(k for _, keys in params for k in keys)})") from None
+                         f"{', '.join(k for _, keys in params for k in keys)}); a grid whose "
+                         "every point diverges needs lower rates, or delete the runs' "
+                         "diverged.json to train them again") from None
 
 
 def _updates_of(params: Any, runs: Path) -> dict[str, Any]:

@@ -65,8 +65,11 @@ MAX_MISSING_LISTED = 12
 
 def _status_lines(runs: list[RunRecord]) -> list[str]:
     unique = list({r.key: r for r in runs}.values())
-    missing = [r for r in unique if not r.finished]
-    line = f"{len(unique) - len(missing)} of {len(unique)} runs finished"
+    diverged = [r for r in unique if not r.finished and r.diverged is not None]
+    missing = [r for r in unique if not r.finished and r.diverged is None]
+    line = f"{len(unique) - len(missing) - len(diverged)} of {len(unique)} runs finished"
+    if diverged:  # grid points' answers (docs/fair-protocol.md), not runs still to do
+        line += f", {len(diverged)} diverged"
     if missing:
         listed = ", ".join(r.describe() for r in missing[:MAX_MISSING_LISTED])
         more = len(missing) - MAX_MISSING_LISTED

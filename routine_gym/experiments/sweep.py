@@ -195,17 +195,19 @@ class _Progress:
             return
         self.last = now
         steps = self.steps(done, running)
+        # a grid point that diverged will not run its steps
+        total = self.total - sum(self.specs[k].steps for k in diverged or ())
         if self.start_steps is None:
             self.start_steps = steps
         rate = (steps - self.start_steps) / max(now - self.start, 1e-9)
-        if steps >= self.total:
+        if steps >= total:
             eta = "0m00s"
         else:
-            eta = _duration((self.total - steps) / rate) if rate > 0 else "–"
+            eta = _duration((total - steps) / rate) if rate > 0 else "–"
         line = (f"[{self.name}] runs {len(done)}/{len(self.specs)} done, {len(running)} running, "
                 f"{len(failed)} failed"
                 + (f", {len(diverged)} diverged (grid points)" if diverged else "")
-                + f" · agent steps {steps:,}/{self.total:,} · "
+                + f" · agent steps {steps:,}/{total:,} · "
                 f"{_duration(now - self.start)} elapsed · ETA {eta}")
         if self.tty:
             self.stream.write("\r\033[K" + line)
@@ -390,8 +392,10 @@ def _sweep(name: str, budget: str, out: Path, entries: list[Entry], *, jobs: int
 
     summary = SweepSummary()
     progress = _Progress(name, specs, runs, stream)
-    # Grid points: a divergence is their answer (the point loses), not a fault.
-    grid = set(specs) if EXPERIMENTS[name].grid else set()
+    # Grid points: a divergence is their answer (the point loses), not a fault. In a grid
+    # experiment, its runs at a learning rate of the grid (not an expert it may need).
+    grid = ({e.run.key for e in entries if "learning_rate" in e.variant}
+            if EXPERIMENTS[name].grid else set())
     for spec in specs.values():
         grid.update(grid_keys(spec.derived))
     done = {k for k in specs if _finished(runs, k, progress, name)}
@@ -443,9 +447,10 @@ def _sweep(name: str, budget: str, out: Path, entries: list[Entry], *, jobs: int
             for handle, outcome in runner.wait(list(handles), poll):
                 key = handles.pop(handle)
                 if outcome.get("diverged") and key in grid:
-                    diverged[key] = summary.diverged[key] = outcome["error"]
+                    line = outcome["error"].removeprefix("diverged: ")
+                    diverged[key] = summary.diverged[key] = line
                     progress.note(f"[{name}] diverged {key} ({specs[key].script}), a grid "
-                                  f"point: it loses the choice ({outcome['error']})")
+                                  f"point: it loses the choice ({line})")
                 elif "error" in outcome:
                     failed[key] = outcome["error"]
                     progress.note(f"[{name}] failed {key} ({specs[key].script}): "

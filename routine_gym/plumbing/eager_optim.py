@@ -3,17 +3,20 @@
 torch 2.13 readies its optimizers for `torch.compile` even when nothing compiles: the first
 `step()` runs `import torch._dynamo` (for two `graph_break()` calls around the update, which do
 nothing outside a compiled region), and the first call of `add_param_group`, `zero_grad`,
-`state_dict`, `load_state_dict` and the functional `rmsprop`/`adam` imports it too, to mark
-them "never compile". The import (sympy, the FX tracer) costs about 1.4 s of CPU here against
-0.6 s for a whole 1,000-step smoke run's training and evaluation (`bench/bench_script_start.py`):
-every script pays it once, the test suite hundreds of times. No script of routine-gym compiles
+`state_dict` and `load_state_dict` imports it too, to mark them "never compile". The import
+(sympy, the FX tracer) costs about 1.4 s of CPU here against 0.6 s for a whole 1,000-step smoke
+run's training and evaluation (`bench/bench_script_start.py`): every script pays it once, the
+test suite hundreds of times. No script of routine-gym compiles
 anything, so the marks are true already and the graph breaks are no-ops.
 
-`eager_optimizers()` gives `RMSprop` and `Adam` a `step` that is torch's own update under the
-same grad mode (`torch.set_grad_enabled(differentiable)`, as torch's wrapper sets it) without
-the graph breaks, and marks the wrapped methods and functions as done (`__dynamo_disable`, the
-attribute torch's wrapper caches its mark in, set to the function itself: the wrapper then calls
-it directly, as it does after the import outside a compiled region). The update is the same
+`eager_optimizers()` gives `RMSprop` and `Adam` (and `AdamW`, which inherits it) a `step`
+that is torch's own update under the same grad mode (`torch.set_grad_enabled(differentiable)`,
+as torch's wrapper sets it) without the graph breaks, and torch's wrapped step itself while a
+graph is being compiled; and it marks the four methods as done (`__dynamo_disable`, the
+attribute torch's wrapper caches its mark in, set to the method itself: the wrapper then calls
+it directly, as it does after the import outside a compiled region). The marks hold for the
+whole process: a script of one's own that uses `run_script` and compiles should set the switch
+below to 0, so that torch's marks keep the compiler out of those methods. The update is the same
 arithmetic, so a seeded run's numbers are the same bit for bit (`tests/test_eager_optim.py`).
 It does nothing when `torch._dynamo` is imported already (a caller that may compile keeps
 torch's behaviour), and leaves alone any wrapper not of the shape it knows (another torch:
@@ -59,6 +62,8 @@ def _eager_step(step: Callable[..., Any]) -> Callable[..., Any]:
 
     @functools.wraps(body)
     def eager_step(self: Any, *args: Any, **kwargs: Any) -> Any:
+        if torch.compiler.is_compiling():  # a flag's read: torch's own wrapper, graph breaks
+            return step(self, *args, **kwargs)
         with torch.set_grad_enabled(self.defaults["differentiable"]):
             return body(self, *args, **kwargs)
 
@@ -82,16 +87,12 @@ def eager_optimizers() -> list[str]:
     import torch._compile
     import torch.optim
 
-    modules = {name: sys.modules.get(f"torch.optim.{name}")
-               for name in ("optimizer", "rmsprop", "adam")}
-    if None in modules.values():
+    optimizer = sys.modules.get("torch.optim.optimizer")
+    if optimizer is None:
         return []
-    compile_file, optim_file = torch._compile.__file__, modules["optimizer"].__file__
+    compile_file, optim_file = torch._compile.__file__, optimizer.__file__
     changed = [f"Optimizer.{name}" for name in _METHODS
                if _mark(getattr(torch.optim.Optimizer, name, None), compile_file, "inner")]
-    for function in ("rmsprop", "adam"):
-        if _mark(getattr(modules[function], function, None), optim_file, "maybe_fallback"):
-            changed.append(function)
     for cls in (torch.optim.RMSprop, torch.optim.Adam):
         step = cls.__dict__.get("step")
         if getattr(step, "eager", False):
