@@ -134,3 +134,21 @@ def test_a_sweep_goes_on_past_a_diverged_grid_point_and_fails_any_other_divergen
     log = (out / "runs" / tuned.run.key / "log.txt").read_text()
     assert "--learning-rate 0.0007 --anneal-lr" in log
     assert (out / "runs" / bad.run.key / "log.txt").read_text().count("\n# ") == 0  # once
+
+
+def test_a_run_whose_every_grid_point_diverged_fails_in_one_line_without_a_process(tmp_path):
+    from routine_gym.experiments.backends import execute_run
+
+    runs = tmp_path / "runs"
+    _record(runs, "b2", None)
+    _record(runs, "d1", None)
+    config = {"key": "tuned000001", "script": "rapl_a2c", "steps": 1000, "needs": ["b2", "d1"],
+              "flags": {"env-id": GAME, "mode": "a2c"},
+              "derived": _tuned((7e-4, ["b2"]), (1.4e-3, ["d1"]))}
+    (runs / "tuned000001").mkdir()
+    outcome = execute_run(config, str(runs))
+    assert outcome == {"key": "tuned000001", "error": (
+        "cannot choose a tuned setting: every grid point has a run that diverged (runs b2, d1); "
+        "a grid whose every point diverges needs lower rates, or delete the runs' "
+        "diverged.json to train them again")}
+    assert not (runs / "tuned000001" / "log.txt").exists()  # no process was started
