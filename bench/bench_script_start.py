@@ -22,7 +22,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from common import base_machine_info, fail, git_head, load_average
+from common import base_machine_info, children_die_with_me, fail, git_head, load_average
 
 ROOT = Path(__file__).resolve().parent.parent
 SWITCH = "ROUTINE_GYM_EAGER_OPTIM"
@@ -106,4 +106,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    children_die_with_me()
     main()
