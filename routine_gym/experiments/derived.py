@@ -117,7 +117,7 @@ def _tuned_score(runs: Path, key: str) -> float:
     """A tune run's final score; -inf for one that diverged (its point loses)."""
     from routine_gym.experiments.results import divergence
 
-    if not (runs / key / "result.json").exists() and divergence(runs / key) is not None:
+    if divergence(runs / key) is not None:  # None once the run has a result.json
         return -math.inf
     return _score(_result(runs, key))
 

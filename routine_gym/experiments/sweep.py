@@ -421,10 +421,10 @@ def _sweep(name: str, budget: str, out: Path, entries: list[Entry], *, jobs: int
         while todo or handles:
             for key in list(todo):
                 spec = specs[key]
-                # a diverged need is an answer only to the `tuned` rule that reads it
-                answers = set(grid_keys(spec.derived))
+                # a diverged need is an answer only to the `tuned` rule that reads it (its
+                # keys looked up only then: this loop runs over every waiting run each poll)
                 broken = [n for n in spec.needs if n in failed
-                          or (n in diverged and n not in answers)]
+                          or (n in diverged and n not in grid_keys(spec.derived))]
                 if broken:
                     todo.remove(key)
                     failed[key] = (f"needs run {broken[0]}, which "

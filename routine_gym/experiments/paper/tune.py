@@ -19,6 +19,7 @@ run of the point diverged).
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Sequence
 
@@ -79,10 +80,10 @@ def choices(runs: Sequence[RunRecord]) -> dict[tuple[str, str], dict]:
                 points.append((point, at, [r.score if r.finished else -math.inf
                                            for r in sorted(at, key=lambda r: r.seed)
                                            if r.finished or r.diverged]))
-            has_all = all(len(scores) > 0 for _, _, scores in points)
-            means = [np.mean(scores) for _, _, scores in points] if has_all else []
-            chosen = (choose_point([((), scores) for _, _, scores in points])
-                      if has_all and any(math.isfinite(m) for m in means) else None)
+            chosen = None
+            if all(len(scores) > 0 for _, _, scores in points):
+                with contextlib.suppress(ValueError):  # every point diverged: no choice
+                    chosen = choose_point([((), scores) for _, _, scores in points])
             complete = all(r.finished or r.diverged for _, at, _ in points for r in at)
             out[(method, env_id)] = {"points": points, "chosen": chosen, "complete": complete}
     return out
